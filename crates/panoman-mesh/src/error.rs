@@ -1,0 +1,47 @@
+//! Error type of the mesh kernel. Every variant renders as one line that names what is wrong
+//! (and the file, where one is involved), so the CLI can print `error: <file>: <what>`.
+
+use std::path::PathBuf;
+
+/// Errors of mesh I/O, validation and reconstruction.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshError {
+    /// The file could not be opened, read or written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file is malformed or truncated; `what` says where and how.
+    #[error("{}: {what}", path.display())]
+    Format { path: PathBuf, what: String },
+    /// The face list does not describe a valid manifold, consistently oriented mesh.
+    #[error("invalid mesh topology: {0}")]
+    Topology(String),
+    /// Coordinates or data contain NaN or infinite values.
+    #[error("non-finite value: {0}")]
+    NonFinite(String),
+    /// Two inputs that must agree in size or topology do not.
+    #[error("mismatch: {0}")]
+    Mismatch(String),
+    /// A numerical step failed (singular system, failed factorization).
+    #[error("numerical failure: {0}")]
+    Numerical(String),
+}
+
+impl MeshError {
+    /// Attach a file path to an error that has none (topology, non-finite, mismatch).
+    pub fn in_file(self, path: impl Into<PathBuf>) -> MeshError {
+        match self {
+            MeshError::Io { .. } | MeshError::Format { .. } => self,
+            other => MeshError::Format {
+                path: path.into(),
+                what: other.to_string(),
+            },
+        }
+    }
+}
+
+/// Result alias of this crate.
+pub type Result<T, E = MeshError> = std::result::Result<T, E>;

@@ -1,0 +1,1 @@
+//! Mesh file I/O: OBJ and PLY (ascii and binary), atomic writes.

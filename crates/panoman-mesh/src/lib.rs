@@ -1,0 +1,24 @@
+//! # panoman-mesh
+//!
+//! The geometric kernel of panoman: triangle meshes and their topology tables, OBJ/PLY I/O,
+//! the RLA representation of PanoMan (relative edge lengths `RL = l/l_rest − 1` and relative
+//! signed dihedral angles `RA = wrap(φ − φ_rest)`, paper §4.1) with analytic gradients, and the
+//! reconstruction `g` (RL, RA, rest shape → vertices, paper Appendix A).
+//!
+//! Conventions (see `docs`/`algorithms.md` §0): geometry in `f64` metres; faces are
+//! counter-clockwise seen from outside (outward normals); vertex and face indices are `u32`.
+
+pub mod align;
+pub mod error;
+pub mod geom;
+pub mod io;
+pub mod measure;
+pub mod mesh;
+pub mod recon;
+pub mod rla;
+pub mod topology;
+
+pub use error::{MeshError, Result};
+pub use mesh::TriMesh;
+pub use recon::{Gauge, Reconstructor};
+pub use topology::Topology;
