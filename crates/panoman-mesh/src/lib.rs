@@ -20,5 +20,5 @@ pub mod topology;
 
 pub use error::{MeshError, Result};
 pub use mesh::TriMesh;
-pub use recon::{Gauge, Reconstructor};
-pub use topology::Topology;
+// pub use recon::{Gauge, Reconstructor};
+// pub use topology::Topology;
