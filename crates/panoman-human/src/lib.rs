@@ -11,5 +11,6 @@ pub mod assets;
 pub mod basemesh;
 pub mod error;
 pub mod npy;
+pub mod template;
 
 pub use error::{HumanError, Result};
