@@ -91,7 +91,11 @@ pub fn det(a: &M3) -> f64 {
 /// Matrix whose columns are `c0, c1, c2`.
 #[inline]
 pub fn from_cols(c0: V3, c1: V3, c2: V3) -> M3 {
-    [[c0[0], c1[0], c2[0]], [c0[1], c1[1], c2[1]], [c0[2], c1[2], c2[2]]]
+    [
+        [c0[0], c1[0], c2[0]],
+        [c0[1], c1[1], c2[1]],
+        [c0[2], c1[2], c2[2]],
+    ]
 }
 /// Frobenius norm of A − B.
 pub fn frobenius_diff(a: &M3, b: &M3) -> f64 {

@@ -16,9 +16,11 @@ pub mod measure;
 pub mod mesh;
 pub mod recon;
 pub mod rla;
+pub mod sparse;
 pub mod topology;
 
 pub use error::{MeshError, Result};
 pub use mesh::TriMesh;
-// pub use recon::{Gauge, Reconstructor};
-// pub use topology::Topology;
+pub use recon::{GWorkspace, Gauge, Reconstructor};
+pub use rla::{RestGeometry, Rla};
+pub use topology::Topology;

@@ -1,0 +1,853 @@
+//! The reconstruction `g`: target edge lengths and dihedral angles (from RL, RA and a rest
+//! shape) → vertex positions (PanoMan Appendix A; algorithms.md §2).
+//!
+//! 1. **Local triangle coordinates.** Face `t = (p0, p1, p2)` gets `q0 = 0`, `q1 = (ℓ01, 0, 0)`,
+//!    `q2 = (c, h, 0)` with `c = (ℓ01² + ℓ02² − ℓ12²)/(2ℓ01)`, `h = sqrt(max(ℓ02² − c², ε ℓ01²))`,
+//!    so that `x_b − x_a = R_t (q_b − q_a)` for the triangle's world frame
+//!    `R_t = [u v n]`, `u = (p1−p0)/|·|`, `n = (p1−p0)×(p2−p0)/|·|`, `v = n × u`.
+//! 2. **Connection maps.** For interior edge `e = (i, j)` the diamond is embedded canonically
+//!    from its 5 lengths and φ*: `P_i = 0`, `P_j = (ℓ,0,0)`, `P_k = (c_k, h_k, 0)`,
+//!    `P_l = (c_l, −h_l cos φ, −h_l sin φ)`; with `R̃_L`, `R̃_R` the frames of fL, fR measured
+//!    there by the same frame function, `Q_e = R̃_Lᵀ R̃_R`, and consistent world frames satisfy
+//!    `R_fR = R_fL Q_e` (the paper prints the transposed relation).
+//! 3. **Global frame solve.** `min Σ_e ‖R_fL Q_e − R_fR‖²_F` over free 3×3 matrices with one
+//!    gauge face fixed per connected component. In `Y_t = R_tᵀ` the normal equations are
+//!    `K Y = 0` with 3×3 blocks `K_tt = deg(t)·I`, `K_{fL,fR} = −Q_e`, `K_{fR,fL} = −Q_eᵀ` and
+//!    the three columns of `Y` decouple. Instead of factoring `K` (whose values change per
+//!    call), we solve it by preconditioned conjugate gradients with the exact inverse for
+//!    consistent data: if `D = blockdiag(R⁰_tᵀ)` holds frames consistent with the `Q_e`, then
+//!    `K = D (L ⊗ I₃) Dᵀ` with `L` the (constant) scalar dual-graph Laplacian, so
+//!    `M⁻¹ = D (L⁻¹ ⊗ I₃) Dᵀ`, factored once per topology. `R⁰` comes from propagating the
+//!    gauge frame along a BFS tree of the dual graph (`R_child = R_parent Q_e`), which is exact
+//!    for consistent data (zero PCG iterations) and a strong preconditioner otherwise.
+//! 4. **Projection** of every `Y_tᵀ` to SO(3) ([`crate::align::nearest_rotation`]).
+//! 5. **Poisson vertex solve.** `min Σ_t Σ_{(a→b)∈∂t} ‖x_b − x_a − R_t (q_b − q_a)‖²` with one
+//!    gauge vertex fixed per component: its normal matrix is the uniform graph Laplacian
+//!    (weight 2 per interior edge, 1 per boundary edge), factored once per topology.
+//!
+//! Everything that depends only on the topology lives in [`Reconstructor`]; per-call buffers
+//! live in [`GWorkspace`], so repeated calls do not allocate.
+
+use crate::align::nearest_rotation;
+use crate::error::{MeshError, Result};
+use crate::geom::{M3, V3, cross, from_cols, matmul, normalize, sub, transpose};
+use crate::rla::{RestGeometry, Rla};
+use crate::sparse::SpdFactor;
+use crate::topology::{NONE, Topology};
+use faer::Mat;
+use faer::dyn_stack::MemBuffer;
+use rayon::prelude::*;
+
+/// Clamp ε of the triangle height: `h ≥ sqrt(ε)·ℓ01` (handles blended lengths that violate the
+/// triangle inequality, algorithms.md §6.5).
+const HEIGHT_EPS: f64 = 1e-12;
+/// Faces per rayon task.
+const FACE_CHUNK: usize = 2048;
+
+/// The frame `[u v n]` (columns) of the triangle (p0, p1, p2), see the module docs.
+#[inline]
+pub fn triangle_frame(p0: V3, p1: V3, p2: V3) -> M3 {
+    let a = sub(p1, p0);
+    let u = normalize(a);
+    let n = normalize(cross(a, sub(p2, p0)));
+    let v = cross(n, u);
+    from_cols(u, v, n)
+}
+
+/// Local coordinates `(c, h)` of the third corner of a triangle with side lengths
+/// `ℓ01, ℓ02, ℓ12`, i.e. `q2 = (c, h, 0)` when `q0 = 0`, `q1 = (ℓ01, 0, 0)`.
+#[inline]
+pub fn third_corner(l01: f64, l02: f64, l12: f64) -> (f64, f64) {
+    let c = (l01 * l01 + l02 * l02 - l12 * l12) / (2.0 * l01);
+    let c = c.clamp(-l02, l02);
+    let h = (l02 * l02 - c * c).max(HEIGHT_EPS * l01 * l01).sqrt();
+    (c, h)
+}
+
+/// The gauge of `g`: the rotation of one face and the position of one vertex per connected
+/// component (g is defined up to one rigid motion per component).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Gauge {
+    /// Frame of the gauge face of each component (see [`Reconstructor::gauge_faces`]).
+    pub frames: Vec<M3>,
+    /// Position of the gauge vertex of each component (see [`Reconstructor::gauge_vertices`]).
+    pub positions: Vec<V3>,
+}
+
+/// Statistics of one `g` call.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GStats {
+    /// PCG iterations of the frame solve (0 for exactly consistent data).
+    pub pcg_iterations: usize,
+    /// Final PCG residual `max_c ‖r_c‖₂` of the frame system.
+    pub frame_residual: f64,
+    /// Largest distance `‖Y_tᵀ − R_t‖_F` removed by the SO(3) projection (0 for consistent data).
+    pub max_projection: f64,
+}
+
+/// Per-topology state of `g`: tables, gauge choice, BFS tree and the two constant Cholesky
+/// factors (dual-graph Laplacian for the frame preconditioner, vertex Laplacian for Poisson).
+pub struct Reconstructor {
+    topo: Topology,
+    /// Per face: slot of each edge's first vertex in the face (`faces[f][slot] == edges[e][0]`
+    /// or the face runs the edge backwards).
+    gauge_faces: Vec<u32>,
+    gauge_vertices: Vec<u32>,
+    face_red: Vec<u32>,
+    vert_red: Vec<u32>,
+    n_face_red: usize,
+    n_vert_red: usize,
+    /// BFS order over the dual graph: (face, parent face, edge); roots are the gauge faces.
+    tree: Vec<(u32, u32, u32)>,
+    dual_factor: SpdFactor,
+    vert_factor: SpdFactor,
+    /// Vertex-Laplacian couplings to gauge vertices: (reduced vertex, component, weight).
+    gauge_couplings: Vec<(u32, u32, f64)>,
+    /// Interior-edge degree of each face (diagonal of K).
+    face_degree: Vec<f64>,
+    /// Maximum PCG iterations of the frame solve.
+    pub max_pcg_iterations: usize,
+    /// Absolute PCG tolerance on each column's residual, relative to sqrt(#unknown faces).
+    pub pcg_tolerance: f64,
+    /// PCG stops once the residual fell by this factor from its initial value.
+    pub pcg_relative_tolerance: f64,
+    /// Preconditioner refreshes (passes) of the frame solve.
+    pub pcg_passes: usize,
+    /// Residual reduction that ends a pass before the last.
+    pub pcg_pass_reduction: f64,
+}
+
+impl std::fmt::Debug for Reconstructor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Reconstructor")
+            .field("faces", &self.topo.n_faces())
+            .field("vertices", &self.topo.n_vertices)
+            .field("components", &self.gauge_faces.len())
+            .finish()
+    }
+}
+
+/// Per-call buffers of `g` (created once per [`Reconstructor`], reused across calls).
+pub struct GWorkspace {
+    /// Target lengths ℓ* (#E).
+    pub lengths: Vec<f64>,
+    /// Target angles φ* (#E).
+    pub angles: Vec<f64>,
+    /// Per face: (ℓ01, c, h) of the local coordinates.
+    local: Vec<[f64; 3]>,
+    /// Per edge: connection map Q_e (identity on boundary edges).
+    conn: Vec<M3>,
+    /// Tree-propagated frames R⁰_t.
+    frames0: Vec<M3>,
+    /// Frame unknowns Y_t = R_tᵀ, then the projected frames R_t.
+    y: Vec<M3>,
+    r: Vec<M3>,
+    z: Vec<M3>,
+    p: Vec<M3>,
+    kp: Vec<M3>,
+    pre: Mat<f64>,
+    pre_scratch: [MemBuffer; 2],
+    vrhs: Mat<f64>,
+    v_scratch: MemBuffer,
+    /// Statistics of the last call.
+    pub stats: GStats,
+}
+
+impl Reconstructor {
+    /// Builds the per-topology state: gauge choice (the lowest-index face and its first vertex
+    /// in each component), BFS tree, and the Cholesky factors of the dual-graph Laplacian and
+    /// the vertex Laplacian with the gauges removed.
+    pub fn new(topo: &Topology) -> Result<Self> {
+        let nf = topo.n_faces();
+        let nv = topo.n_vertices;
+        let ncomp = topo.n_face_components;
+        if topo.n_vertex_components != ncomp {
+            return Err(MeshError::Topology(format!(
+                "{} vertex components but {} face components",
+                topo.n_vertex_components, ncomp
+            )));
+        }
+        let mut gauge_faces = vec![NONE; ncomp];
+        for f in 0..nf {
+            let c = topo.face_component[f] as usize;
+            if gauge_faces[c] == NONE {
+                gauge_faces[c] = f as u32;
+            }
+        }
+        let mut gauge_vertices = vec![NONE; ncomp];
+        for (c, &f) in gauge_faces.iter().enumerate() {
+            let v = topo.faces[f as usize][0];
+            let vc = topo.vertex_component[v as usize] as usize;
+            if gauge_vertices[vc] != NONE {
+                return Err(MeshError::Topology(
+                    "face and vertex components disagree".into(),
+                ));
+            }
+            gauge_vertices[vc] = v;
+            let _ = c;
+        }
+
+        // Reduced numbering (gauges removed).
+        let mut face_red = vec![NONE; nf];
+        let mut n_face_red = 0usize;
+        let mut is_gauge_face = vec![false; nf];
+        for &g in &gauge_faces {
+            is_gauge_face[g as usize] = true;
+        }
+        for f in 0..nf {
+            if !is_gauge_face[f] {
+                face_red[f] = n_face_red as u32;
+                n_face_red += 1;
+            }
+        }
+        let mut vert_red = vec![NONE; nv];
+        let mut gauge_comp_of_vertex = vec![NONE; nv];
+        for (c, &g) in gauge_vertices.iter().enumerate() {
+            gauge_comp_of_vertex[g as usize] = c as u32;
+        }
+        let mut n_vert_red = 0usize;
+        for v in 0..nv {
+            if gauge_comp_of_vertex[v] == NONE {
+                vert_red[v] = n_vert_red as u32;
+                n_vert_red += 1;
+            }
+        }
+
+        // BFS tree over the dual graph.
+        let mut tree = Vec::with_capacity(nf);
+        let mut seen = is_gauge_face.clone();
+        let mut queue = std::collections::VecDeque::new();
+        for &g in &gauge_faces {
+            queue.push_back(g);
+        }
+        while let Some(f) = queue.pop_front() {
+            for &(o, e) in topo.dual_neighbors_of(f as usize) {
+                if !seen[o as usize] {
+                    seen[o as usize] = true;
+                    tree.push((o, f, e));
+                    queue.push_back(o);
+                }
+            }
+        }
+        debug_assert_eq!(tree.len() + ncomp, nf);
+
+        // Dual-graph Laplacian (unit weights) without the gauge faces.
+        let mut face_degree = vec![0.0; nf];
+        let mut trips = Vec::with_capacity(nf + topo.n_interior_edges());
+        for f in 0..nf {
+            face_degree[f] = topo.dual_neighbors_of(f).len() as f64;
+        }
+        for f in 0..nf {
+            let rf = face_red[f];
+            if rf == NONE {
+                continue;
+            }
+            trips.push((rf as usize, rf as usize, face_degree[f]));
+            for &(o, _) in topo.dual_neighbors_of(f) {
+                let ro = face_red[o as usize];
+                if ro != NONE && ro < rf {
+                    trips.push((rf as usize, ro as usize, -1.0));
+                }
+            }
+        }
+        let dual_factor = if n_face_red > 0 {
+            SpdFactor::from_triplets(n_face_red, &trips)?
+        } else {
+            SpdFactor::from_triplets(1, &[(0, 0, 1.0)])?
+        };
+
+        // Vertex Laplacian: weight = number of faces on the edge.
+        let mut vdeg = vec![0.0; nv];
+        let mut trips = Vec::with_capacity(nv + topo.n_edges());
+        let mut gauge_couplings = Vec::new();
+        for (e, &[a, b]) in topo.edges.iter().enumerate() {
+            let w = if topo.is_interior(e) { 2.0 } else { 1.0 };
+            vdeg[a as usize] += w;
+            vdeg[b as usize] += w;
+            let (ra, rb) = (vert_red[a as usize], vert_red[b as usize]);
+            match (ra != NONE, rb != NONE) {
+                (true, true) => trips.push((ra.max(rb) as usize, ra.min(rb) as usize, -w)),
+                (true, false) => gauge_couplings.push((ra, gauge_comp_of_vertex[b as usize], w)),
+                (false, true) => gauge_couplings.push((rb, gauge_comp_of_vertex[a as usize], w)),
+                (false, false) => {}
+            }
+        }
+        for v in 0..nv {
+            if vert_red[v] != NONE {
+                trips.push((vert_red[v] as usize, vert_red[v] as usize, vdeg[v]));
+            }
+        }
+        let vert_factor = if n_vert_red > 0 {
+            SpdFactor::from_triplets(n_vert_red, &trips)?
+        } else {
+            SpdFactor::from_triplets(1, &[(0, 0, 1.0)])?
+        };
+
+        Ok(Self {
+            topo: topo.clone(),
+            gauge_faces,
+            gauge_vertices,
+            face_red,
+            vert_red,
+            n_face_red,
+            n_vert_red,
+            tree,
+            dual_factor,
+            vert_factor,
+            gauge_couplings,
+            face_degree,
+            max_pcg_iterations: 200,
+            pcg_tolerance: 1e-13,
+            pcg_relative_tolerance: 1e-9,
+            pcg_passes: 4,
+            pcg_pass_reduction: 1e-2,
+        })
+    }
+
+    /// The topology this reconstructor was built for.
+    pub fn topology(&self) -> &Topology {
+        &self.topo
+    }
+
+    /// The gauge face of each connected component.
+    pub fn gauge_faces(&self) -> &[u32] {
+        &self.gauge_faces
+    }
+
+    /// The gauge vertex of each connected component.
+    pub fn gauge_vertices(&self) -> &[u32] {
+        &self.gauge_vertices
+    }
+
+    /// The gauge that places the output like `positions` (e.g. the rest shape): the gauge faces'
+    /// frames and gauge vertices' positions measured on it.
+    pub fn gauge_from(&self, positions: &[V3]) -> Result<Gauge> {
+        crate::rla::check_positions(&self.topo, positions, "gauge mesh")?;
+        let frames = self
+            .gauge_faces
+            .iter()
+            .map(|&f| {
+                let [a, b, c] = self.topo.faces[f as usize];
+                triangle_frame(
+                    positions[a as usize],
+                    positions[b as usize],
+                    positions[c as usize],
+                )
+            })
+            .collect();
+        let positions = self
+            .gauge_vertices
+            .iter()
+            .map(|&v| positions[v as usize])
+            .collect();
+        Ok(Gauge { frames, positions })
+    }
+
+    /// The identity gauge: gauge faces' frames = I, gauge vertices at the origin.
+    pub fn identity_gauge(&self) -> Gauge {
+        Gauge {
+            frames: vec![crate::geom::IDENTITY; self.gauge_faces.len()],
+            positions: vec![[0.0; 3]; self.gauge_faces.len()],
+        }
+    }
+
+    /// Allocates the per-call buffers.
+    pub fn workspace(&self) -> GWorkspace {
+        let nf = self.topo.n_faces();
+        let ne = self.topo.n_edges();
+        let nfr = self.n_face_red.max(1);
+        let nvr = self.n_vert_red.max(1);
+        GWorkspace {
+            lengths: vec![0.0; ne],
+            angles: vec![0.0; ne],
+            local: vec![[0.0; 3]; nf],
+            conn: vec![crate::geom::IDENTITY; ne],
+            frames0: vec![crate::geom::IDENTITY; nf],
+            y: vec![[[0.0; 3]; 3]; nf],
+            r: vec![[[0.0; 3]; 3]; nf],
+            z: vec![[[0.0; 3]; 3]; nf],
+            p: vec![[[0.0; 3]; 3]; nf],
+            kp: vec![[[0.0; 3]; 3]; nf],
+            pre: Mat::zeros(nfr, 9),
+            pre_scratch: [
+                self.dual_factor.make_scratch(5),
+                self.dual_factor.make_scratch(4),
+            ],
+            vrhs: Mat::zeros(nvr, 3),
+            v_scratch: self.vert_factor.make_scratch(3),
+            stats: GStats::default(),
+        }
+    }
+
+    /// `g(RL, RA, rest)`: the vertices whose edge lengths and dihedral angles best match
+    /// `ℓ* = ℓ_r ⊙ (1 + RL)`, `φ* = φ_r + RA`, placed by `gauge`, written to `out` (#V).
+    pub fn reconstruct_rla(
+        &self,
+        ws: &mut GWorkspace,
+        rest: &RestGeometry,
+        rla: &Rla,
+        gauge: &Gauge,
+        out: &mut [V3],
+    ) -> Result<GStats> {
+        let ne = self.topo.n_edges();
+        if rla.rl.len() != ne || rla.ra.len() != ne || rest.lengths.len() != ne {
+            return Err(MeshError::Mismatch(format!(
+                "RLA has {} RL and {} RA values (rest: {}), the topology has {ne} edges",
+                rla.rl.len(),
+                rla.ra.len(),
+                rest.lengths.len()
+            )));
+        }
+        let (mut lengths, mut angles) = (
+            std::mem::take(&mut ws.lengths),
+            std::mem::take(&mut ws.angles),
+        );
+        rest.targets_into(rla, &mut lengths, &mut angles);
+        let res = self.reconstruct(ws, &lengths, &angles, gauge, out);
+        ws.lengths = lengths;
+        ws.angles = angles;
+        res
+    }
+
+    /// `g` from target lengths ℓ* (#E, > 0) and target signed dihedral angles φ* (#E; ignored
+    /// on boundary edges), placed by `gauge`; writes #V positions to `out`.
+    pub fn reconstruct(
+        &self,
+        ws: &mut GWorkspace,
+        lengths: &[f64],
+        angles: &[f64],
+        gauge: &Gauge,
+        out: &mut [V3],
+    ) -> Result<GStats> {
+        let topo = &self.topo;
+        let (nf, ne, nv) = (topo.n_faces(), topo.n_edges(), topo.n_vertices);
+        if lengths.len() != ne || angles.len() != ne {
+            return Err(MeshError::Mismatch(format!(
+                "{} target lengths and {} angles for {ne} edges",
+                lengths.len(),
+                angles.len()
+            )));
+        }
+        if out.len() != nv {
+            return Err(MeshError::Mismatch(format!(
+                "output has {} vertices, the topology has {nv}",
+                out.len()
+            )));
+        }
+        if gauge.frames.len() != self.gauge_faces.len()
+            || gauge.positions.len() != self.gauge_faces.len()
+        {
+            return Err(MeshError::Mismatch(format!(
+                "gauge has {} frames / {} positions for {} components",
+                gauge.frames.len(),
+                gauge.positions.len(),
+                self.gauge_faces.len()
+            )));
+        }
+        if let Some(e) = lengths.iter().position(|l| !(l.is_finite() && *l > 0.0)) {
+            return Err(MeshError::NonFinite(format!(
+                "target length of edge {e} is {} (must be finite and > 0)",
+                lengths[e]
+            )));
+        }
+        if let Some(e) = angles.iter().position(|a| !a.is_finite()) {
+            return Err(MeshError::NonFinite(format!(
+                "target angle of edge {e} is {}",
+                angles[e]
+            )));
+        }
+
+        // 1. Local coordinates per face.
+        ws.local
+            .par_chunks_mut(FACE_CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                for (off, loc) in chunk.iter_mut().enumerate() {
+                    let fe = topo.face_edges[c * FACE_CHUNK + off];
+                    let (l01, l12, l20) = (
+                        lengths[fe[0] as usize],
+                        lengths[fe[1] as usize],
+                        lengths[fe[2] as usize],
+                    );
+                    let (cx, h) = third_corner(l01, l20, l12);
+                    *loc = [l01, cx, h];
+                }
+            });
+
+        // 2. Connection maps per interior edge.
+        ws.conn
+            .par_chunks_mut(FACE_CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                for (off, q) in chunk.iter_mut().enumerate() {
+                    let e = c * FACE_CHUNK + off;
+                    if topo.is_interior(e) {
+                        *q = connection_map(topo, e, lengths, angles[e]);
+                    }
+                }
+            });
+
+        // 3a. Tree-propagated frames R⁰ (exact for consistent data).
+        for (comp, &g) in self.gauge_faces.iter().enumerate() {
+            ws.frames0[g as usize] = gauge.frames[comp];
+        }
+        for &(f, parent, e) in &self.tree {
+            let rp = ws.frames0[parent as usize];
+            let q = &ws.conn[e as usize];
+            ws.frames0[f as usize] = if topo.edge_faces[e as usize][0] == parent {
+                matmul(&rp, q)
+            } else {
+                matmul(&rp, &transpose(q))
+            };
+        }
+        // 3b. PCG on K Y = 0 with fixed gauge blocks, initial guess Y⁰ = R⁰ᵀ.
+        for f in 0..nf {
+            ws.y[f] = transpose(&ws.frames0[f]);
+        }
+        let stats = self.frame_pcg(ws)?;
+
+        // 4. Projection to SO(3).
+        let max_proj =
+            ws.y.par_chunks_mut(FACE_CHUNK)
+                .map(|chunk| {
+                    let mut m = 0.0f64;
+                    for y in chunk {
+                        let yt = transpose(y);
+                        let r = nearest_rotation(&yt);
+                        m = m.max(crate::geom::frobenius_diff(&yt, &r));
+                        *y = r;
+                    }
+                    m
+                })
+                .reduce(|| 0.0, f64::max);
+        for (comp, &g) in self.gauge_faces.iter().enumerate() {
+            ws.y[g as usize] = gauge.frames[comp];
+        }
+
+        // 5. Poisson vertex solve.
+        let frames = &ws.y;
+        let vrhs = &mut ws.vrhs;
+        vrhs.fill(0.0);
+        let mut add = |v: u32, d: V3, sgn: f64| {
+            let rv = self.vert_red[v as usize];
+            if rv != NONE {
+                for c in 0..3 {
+                    vrhs[(rv as usize, c)] += sgn * d[c];
+                }
+            }
+        };
+        for (f, tri) in topo.faces.iter().enumerate() {
+            let [l01, cx, h] = ws.local[f];
+            let r = &frames[f];
+            // Half-edge vectors in world: R (q_b − q_a).
+            let d01 = [r[0][0] * l01, r[1][0] * l01, r[2][0] * l01];
+            let d02 = [
+                r[0][0] * cx + r[0][1] * h,
+                r[1][0] * cx + r[1][1] * h,
+                r[2][0] * cx + r[2][1] * h,
+            ];
+            let d12 = sub(d02, d01);
+            add(tri[1], d01, 1.0);
+            add(tri[0], d01, -1.0);
+            add(tri[2], d12, 1.0);
+            add(tri[1], d12, -1.0);
+            add(tri[0], d02, -1.0); // half-edge 2→0 carries −d02
+            add(tri[2], d02, 1.0);
+        }
+        for &(rv, comp, w) in &self.gauge_couplings {
+            let x = gauge.positions[comp as usize];
+            for c in 0..3 {
+                vrhs[(rv as usize, c)] += w * x[c];
+            }
+        }
+        if self.n_vert_red > 0 {
+            self.vert_factor
+                .solve_in_place(vrhs.as_mut(), &mut ws.v_scratch);
+        }
+        for v in 0..nv {
+            let rv = self.vert_red[v];
+            if rv != NONE {
+                out[v] = [
+                    vrhs[(rv as usize, 0)],
+                    vrhs[(rv as usize, 1)],
+                    vrhs[(rv as usize, 2)],
+                ];
+            }
+        }
+        for (comp, &g) in self.gauge_vertices.iter().enumerate() {
+            out[g as usize] = gauge.positions[comp];
+        }
+        if let Some(v) = out.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(MeshError::Numerical(format!(
+                "g produced a non-finite position at vertex {v}"
+            )));
+        }
+        ws.stats = GStats {
+            max_projection: max_proj,
+            ..stats
+        };
+        Ok(ws.stats)
+    }
+
+    /// `(K X)_t` for non-gauge faces `t` (X's gauge blocks are read as given).
+    fn apply_k(&self, x: &[M3], conn: &[M3], out: &mut [M3]) {
+        let topo = &self.topo;
+        out.par_chunks_mut(FACE_CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                for (off, o) in chunk.iter_mut().enumerate() {
+                    let t = c * FACE_CHUNK + off;
+                    if self.face_red[t] == NONE {
+                        *o = [[0.0; 3]; 3];
+                        continue;
+                    }
+                    let d = self.face_degree[t];
+                    let mut acc = x[t];
+                    for row in acc.iter_mut() {
+                        for v in row.iter_mut() {
+                            *v *= d;
+                        }
+                    }
+                    for &(s, e) in topo.dual_neighbors_of(t) {
+                        let q = &conn[e as usize];
+                        let xs = &x[s as usize];
+                        // t == fL: K_ts = −Q_e; t == fR: K_ts = −Q_eᵀ.
+                        if topo.edge_faces[e as usize][0] as usize == t {
+                            for r in 0..3 {
+                                for col in 0..3 {
+                                    acc[r][col] -= q[r][0] * xs[0][col]
+                                        + q[r][1] * xs[1][col]
+                                        + q[r][2] * xs[2][col];
+                                }
+                            }
+                        } else {
+                            for r in 0..3 {
+                                for col in 0..3 {
+                                    acc[r][col] -= q[0][r] * xs[0][col]
+                                        + q[1][r] * xs[1][col]
+                                        + q[2][r] * xs[2][col];
+                                }
+                            }
+                        }
+                    }
+                    *o = acc;
+                }
+            });
+    }
+
+    /// `Z = D (L⁻¹ ⊗ I₃) Dᵀ R` with `D = blockdiag(R⁰_tᵀ)`.
+    fn apply_precond(&self, ws: &mut GWorkspace) {
+        let pre = &mut ws.pre;
+        for (t, r) in ws.r.iter().enumerate() {
+            let rt = self.face_red[t];
+            if rt == NONE {
+                continue;
+            }
+            let m = matmul(&ws.frames0[t], r);
+            for a in 0..3 {
+                for b in 0..3 {
+                    pre[(rt as usize, 3 * a + b)] = m[a][b];
+                }
+            }
+        }
+        let (left, right) = pre.as_mut().split_at_col_mut(5);
+        let [s0, s1] = &mut ws.pre_scratch;
+        rayon::join(
+            || self.dual_factor.solve_in_place(left, s0),
+            || self.dual_factor.solve_in_place(right, s1),
+        );
+        for (t, z) in ws.z.iter_mut().enumerate() {
+            let rt = self.face_red[t];
+            if rt == NONE {
+                *z = [[0.0; 3]; 3];
+                continue;
+            }
+            let mut m = [[0.0; 3]; 3];
+            for a in 0..3 {
+                for b in 0..3 {
+                    m[a][b] = pre[(rt as usize, 3 * a + b)];
+                }
+            }
+            *z = matmul(&transpose(&ws.frames0[t]), &m);
+        }
+    }
+
+    /// Preconditioned CG on the three decoupled columns of `K Y = 0` (gauge blocks fixed).
+    ///
+    /// Runs in passes: each pass restarts CG with the preconditioner built from the current
+    /// frames (first the BFS-tree frames, then the SO(3) projection of the current iterate,
+    /// which for non-integrable data is far closer to the least-squares frames than the tree
+    /// propagation with its accumulated error). Stops when every column's residual is below
+    /// `pcg_tolerance·sqrt(n)` or below `pcg_relative_tolerance` times its initial value.
+    fn frame_pcg(&self, ws: &mut GWorkspace) -> Result<GStats> {
+        if self.n_face_red == 0 {
+            return Ok(GStats::default());
+        }
+        let nf = self.topo.n_faces();
+        let col_dot = |a: &[M3], b: &[M3]| -> [f64; 3] {
+            a.par_chunks(FACE_CHUNK)
+                .zip(b.par_chunks(FACE_CHUNK))
+                .map(|(ca, cb)| {
+                    let mut s = [0.0; 3];
+                    for (x, y) in ca.iter().zip(cb) {
+                        for row in 0..3 {
+                            for c in 0..3 {
+                                s[c] += x[row][c] * y[row][c];
+                            }
+                        }
+                    }
+                    s
+                })
+                .reduce(|| [0.0; 3], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]])
+        };
+        let rnorm = |r: &[M3]| -> f64 {
+            let d = col_dot(r, r);
+            d.iter().fold(0.0f64, |m, &x| m.max(x.sqrt()))
+        };
+        let abs_tol = self.pcg_tolerance * (self.n_face_red as f64).sqrt();
+        let mut total_it = 0;
+        let mut res = f64::INFINITY;
+        let mut tol = abs_tol;
+        for pass in 0..self.pcg_passes.max(1) {
+            if pass > 0 {
+                // Refresh the preconditioner's frames from the current iterate.
+                let y = &ws.y;
+                ws.frames0
+                    .par_chunks_mut(FACE_CHUNK)
+                    .enumerate()
+                    .for_each(|(c, chunk)| {
+                        for (off, f0) in chunk.iter_mut().enumerate() {
+                            let t = c * FACE_CHUNK + off;
+                            if self.face_red[t] != NONE {
+                                *f0 = nearest_rotation(&transpose(&y[t]));
+                            }
+                        }
+                    });
+            }
+            // r = −K Y (the right-hand side is 0; Y's gauge blocks carry the constraint).
+            let mut r = std::mem::take(&mut ws.r);
+            self.apply_k(&ws.y, &ws.conn, &mut r);
+            for b in r.iter_mut() {
+                for row in b.iter_mut() {
+                    for v in row.iter_mut() {
+                        *v = -*v;
+                    }
+                }
+            }
+            ws.r = r;
+            res = rnorm(&ws.r);
+            if pass == 0 {
+                tol = abs_tol.max(self.pcg_relative_tolerance * res);
+            }
+            if res <= tol {
+                break;
+            }
+            // A pass ends when it reduced the residual by `pass_reduction` (or hit its cap).
+            let pass_goal = if pass + 1 == self.pcg_passes.max(1) {
+                tol
+            } else {
+                tol.max(self.pcg_pass_reduction * res)
+            };
+            self.apply_precond(ws);
+            ws.p.copy_from_slice(&ws.z);
+            let mut rz = col_dot(&ws.r, &ws.z);
+            let mut it = 0;
+            while it < self.max_pcg_iterations && total_it < self.max_pcg_iterations {
+                it += 1;
+                total_it += 1;
+                let mut kp = std::mem::take(&mut ws.kp);
+                self.apply_k(&ws.p, &ws.conn, &mut kp);
+                ws.kp = kp;
+                let pkp = col_dot(&ws.p, &ws.kp);
+                let mut alpha = [0.0; 3];
+                for c in 0..3 {
+                    alpha[c] = if pkp[c] > 0.0 { rz[c] / pkp[c] } else { 0.0 };
+                }
+                for t in 0..nf {
+                    for row in 0..3 {
+                        for c in 0..3 {
+                            ws.y[t][row][c] += alpha[c] * ws.p[t][row][c];
+                            ws.r[t][row][c] -= alpha[c] * ws.kp[t][row][c];
+                        }
+                    }
+                }
+                res = rnorm(&ws.r);
+                if res <= pass_goal {
+                    break;
+                }
+                self.apply_precond(ws);
+                let rz_new = col_dot(&ws.r, &ws.z);
+                let mut beta = [0.0; 3];
+                for c in 0..3 {
+                    beta[c] = if rz[c] > 0.0 { rz_new[c] / rz[c] } else { 0.0 };
+                }
+                rz = rz_new;
+                for t in 0..nf {
+                    for row in 0..3 {
+                        for c in 0..3 {
+                            ws.p[t][row][c] = ws.z[t][row][c] + beta[c] * ws.p[t][row][c];
+                        }
+                    }
+                }
+            }
+            if res <= tol || total_it >= self.max_pcg_iterations {
+                break;
+            }
+        }
+        if !res.is_finite() {
+            return Err(MeshError::Numerical(
+                "frame solve diverged (non-finite residual)".into(),
+            ));
+        }
+        Ok(GStats {
+            pcg_iterations: total_it,
+            frame_residual: res,
+            max_projection: 0.0,
+        })
+    }
+}
+
+/// `Q_e` of interior edge `e` from its five target lengths and its target angle φ*, by the
+/// canonical diamond embedding (see the module docs).
+pub fn connection_map(topo: &Topology, e: usize, lengths: &[f64], phi: f64) -> M3 {
+    let [i, j] = topo.edges[e];
+    let [fl, fr] = topo.edge_faces[e];
+    let tl = topo.faces[fl as usize];
+    let tr = topo.faces[fr as usize];
+    let sl = tl.iter().position(|&v| v == i).unwrap_or(0);
+    let sr = tr.iter().position(|&v| v == j).unwrap_or(0);
+    let fel = topo.face_edges[fl as usize];
+    let fer = topo.face_edges[fr as usize];
+    let l = lengths[e];
+    // fL = (i, j, k) from slot sl: slot sl+1 is j→k, slot sl+2 is k→i.
+    let l_jk = lengths[fel[(sl + 1) % 3] as usize];
+    let l_ik = lengths[fel[(sl + 2) % 3] as usize];
+    // fR = (j, i, l) from slot sr: slot sr+1 is i→l, slot sr+2 is l→j.
+    let l_il = lengths[fer[(sr + 1) % 3] as usize];
+    let l_jl = lengths[fer[(sr + 2) % 3] as usize];
+    let (ck, hk) = third_corner(l, l_ik, l_jk);
+    let (cl, hl) = third_corner(l, l_il, l_jl);
+    let (s, c) = phi.sin_cos();
+    let pi = [0.0, 0.0, 0.0];
+    let pj = [l, 0.0, 0.0];
+    let pk = [ck, hk, 0.0];
+    let pl = [cl, -hl * c, -hl * s];
+    // Frames at each face's stored vertex order.
+    let at_l = |s: usize| -> V3 {
+        match (s + 3 - sl) % 3 {
+            0 => pi,
+            1 => pj,
+            _ => pk,
+        }
+    };
+    let at_r = |s: usize| -> V3 {
+        match (s + 3 - sr) % 3 {
+            0 => pj,
+            1 => pi,
+            _ => pl,
+        }
+    };
+    let rl = triangle_frame(at_l(0), at_l(1), at_l(2));
+    let rr = triangle_frame(at_r(0), at_r(1), at_r(2));
+    matmul(&transpose(&rl), &rr)
+}

@@ -1,0 +1,118 @@
+//! Sparse symmetric positive-definite solves with faer: symbolic factorization once per sparsity
+//! pattern, numeric factorization per matrix, allocation-free solves with caller-owned scratch.
+
+use crate::error::{MeshError, Result};
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::sparse::linalg::cholesky::{
+    CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
+    factorize_symbolic_cholesky,
+};
+use faer::sparse::{SparseColMat, Triplet};
+use faer::{Conj, MatMut, Par, Side};
+
+/// Cholesky factor `A = L Lᵀ` of a sparse SPD matrix (AMD ordering, supernodal or simplicial as
+/// faer decides). Keeps the symbolic analysis so that [`SpdFactor::refactor`] only redoes the
+/// numeric step for a new matrix with the same pattern.
+pub struct SpdFactor {
+    symbolic: SymbolicCholesky<usize>,
+    values: Vec<f64>,
+    n: usize,
+}
+
+impl std::fmt::Debug for SpdFactor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "SpdFactor {{ n: {}, nnz(L): {} }}",
+            self.n,
+            self.values.len()
+        )
+    }
+}
+
+impl SpdFactor {
+    /// Builds the lower-triangular CSC matrix from `(row, col, value)` triplets (duplicates are
+    /// summed; entries above the diagonal are ignored) and factors it.
+    pub fn from_triplets(n: usize, triplets: &[(usize, usize, f64)]) -> Result<Self> {
+        let a = lower_csc(n, triplets)?;
+        Self::new(&a)
+    }
+
+    /// Symbolic + numeric factorization of `a` (its lower triangle is read).
+    pub fn new(a: &SparseColMat<usize, f64>) -> Result<Self> {
+        let n = a.nrows();
+        let symbolic = factorize_symbolic_cholesky(
+            a.symbolic(),
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            CholeskySymbolicParams::default(),
+        )
+        .map_err(|e| MeshError::Numerical(format!("symbolic Cholesky failed: {e:?}")))?;
+        let mut this = Self {
+            values: vec![0.0; symbolic.len_val()],
+            symbolic,
+            n,
+        };
+        this.refactor(a)?;
+        Ok(this)
+    }
+
+    /// Numeric refactorization of a matrix with the same pattern as the one given at creation.
+    pub fn refactor(&mut self, a: &SparseColMat<usize, f64>) -> Result<()> {
+        let par = Par::Seq;
+        let mut mem = MemBuffer::new(
+            self.symbolic
+                .factorize_numeric_llt_scratch::<f64>(par, Default::default()),
+        );
+        self.symbolic
+            .factorize_numeric_llt(
+                &mut self.values,
+                a.as_ref(),
+                Side::Lower,
+                LltRegularization::default(),
+                par,
+                MemStack::new(&mut mem),
+                Default::default(),
+            )
+            .map_err(|e| MeshError::Numerical(format!("matrix is not positive definite: {e:?}")))?;
+        Ok(())
+    }
+
+    /// Dimension n.
+    pub fn n(&self) -> usize {
+        self.n
+    }
+
+    /// Scratch needed by [`SpdFactor::solve_in_place`] for `ncols` right-hand sides.
+    pub fn solve_scratch(&self, ncols: usize) -> StackReq {
+        self.symbolic.solve_in_place_scratch::<f64>(ncols, Par::Seq)
+    }
+
+    /// Allocates a scratch buffer for `ncols` right-hand sides.
+    pub fn make_scratch(&self, ncols: usize) -> MemBuffer {
+        MemBuffer::new(self.solve_scratch(ncols))
+    }
+
+    /// Solves `A X = B` in place (`rhs` holds B on entry, X on exit), sequentially, using the
+    /// caller's scratch (no allocation).
+    pub fn solve_in_place(&self, rhs: MatMut<'_, f64>, scratch: &mut MemBuffer) {
+        LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
+            Conj::No,
+            rhs,
+            Par::Seq,
+            MemStack::new(scratch),
+        );
+    }
+}
+
+/// Lower-triangular CSC matrix from triplets (duplicates summed, upper entries dropped).
+pub fn lower_csc(n: usize, triplets: &[(usize, usize, f64)]) -> Result<SparseColMat<usize, f64>> {
+    let trips: Vec<Triplet<usize, usize, f64>> = triplets
+        .iter()
+        .filter(|&&(r, c, _)| r >= c)
+        .map(|&(r, c, v)| Triplet::new(r, c, v))
+        .collect();
+    SparseColMat::try_new_from_triplets(n, n, &trips)
+        .map_err(|e| MeshError::Numerical(format!("sparse assembly failed: {e:?}")))
+}
