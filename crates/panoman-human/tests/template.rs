@@ -114,9 +114,9 @@ fn full_template_counts_and_topology() {
     // Triangle corners carry the quads' UVs.
     for (t, (&q, uv)) in full.tri_quad.iter().zip(&full.tri_uv).enumerate() {
         let (quad, quv) = (full.quads[q as usize], full.quad_uv[q as usize]);
-        for c in 0..3 {
-            let s = quad.iter().position(|&v| v == m.faces[t][c]).unwrap();
-            assert_eq!(uv[c], quv[s]);
+        for (&v, &u) in m.faces[t].iter().zip(uv) {
+            let s = quad.iter().position(|&w| w == v).unwrap();
+            assert_eq!(u, quv[s]);
         }
     }
     // Outward orientation: positive signed volume.
