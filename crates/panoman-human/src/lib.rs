@@ -14,3 +14,9 @@ pub mod npy;
 pub mod template;
 
 pub use error::{HumanError, Result};
+pub mod generator;
+pub mod params;
+pub mod phenotype;
+pub mod rig;
+pub mod skinning;
+pub mod targets;
