@@ -1,1 +1,220 @@
 //! Mesh file I/O: OBJ and PLY (ascii and binary), atomic writes.
+//!
+//! * [`read_mesh`] / [`write_mesh`] pick the format from the file extension (`.obj`, `.ply`,
+//!   case-insensitive). PLY is written as binary little-endian; [`ply::write_ply`] can also write
+//!   ascii.
+//! * Readers never panic on malformed input: every problem is a [`MeshError::Format`] that names
+//!   the file and, for text formats, the line. Polygons with more than three corners are
+//!   triangulated (see [`triangulate_polygon`]).
+//! * Writers are atomic: the data go to a temporary file next to the target (`.<name>.tmp-<pid>-<n>`),
+//!   which is flushed, synced and then renamed onto the target; on any error the temporary file is
+//!   removed and the target is left as it was.
+//! * Coordinates are printed with Rust's shortest round-trip formatting, so every finite `f64`
+//!   (including `-0.0` and subnormals) reads back bit-exactly.
+
+pub mod obj;
+pub mod ply;
+
+pub use ply::PlyFormat;
+
+use std::ffi::OsString;
+use std::fs::{self, File, OpenOptions};
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use crate::error::{MeshError, Result};
+use crate::mesh::TriMesh;
+
+/// The mesh file formats understood by [`read_mesh`] and [`write_mesh`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MeshFormat {
+    /// Wavefront OBJ (`.obj`).
+    Obj,
+    /// Stanford PLY (`.ply`).
+    Ply,
+}
+
+impl MeshFormat {
+    /// The format implied by the extension of `path` (case-insensitive), or a
+    /// [`MeshError::Format`] naming the file and the supported extensions.
+    pub fn from_path(path: &Path) -> Result<MeshFormat> {
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        match ext.as_deref() {
+            Some("obj") => Ok(MeshFormat::Obj),
+            Some("ply") => Ok(MeshFormat::Ply),
+            Some(other) => Err(format_error(
+                path,
+                format!("unsupported mesh file extension '.{other}' (supported: .obj, .ply)"),
+            )),
+            None => Err(format_error(
+                path,
+                "mesh file has no extension (supported: .obj, .ply)",
+            )),
+        }
+    }
+}
+
+/// Reads a triangle mesh, choosing the parser from the extension: `.obj` → [`obj::read_obj`],
+/// `.ply` → [`ply::read_ply`] (case-insensitive). Any other extension is a
+/// [`MeshError::Format`] that names the file and the supported extensions.
+pub fn read_mesh(path: &Path) -> Result<TriMesh> {
+    match MeshFormat::from_path(path)? {
+        MeshFormat::Obj => obj::read_obj(path),
+        MeshFormat::Ply => ply::read_ply(path),
+    }
+}
+
+/// Writes a triangle mesh atomically, choosing the format from the extension: `.obj` → OBJ
+/// ([`obj::write_obj`]), `.ply` → binary little-endian PLY ([`ply::write_ply`]).
+/// The mesh must pass [`TriMesh::check_basic`] (finite coordinates, indices in range).
+pub fn write_mesh(path: &Path, mesh: &TriMesh) -> Result<()> {
+    match MeshFormat::from_path(path)? {
+        MeshFormat::Obj => obj::write_obj(path, mesh),
+        MeshFormat::Ply => ply::write_ply(path, mesh, PlyFormat::BinaryLittleEndian),
+    }
+}
+
+/// Appends the triangles of the polygon `poly` (vertex indices, already validated to be in range
+/// of `positions`) to `out`, keeping its winding:
+///
+/// * a triangle is copied;
+/// * a quad `(a, b, c, d)` is split along its shorter diagonal: if `|a − c| < |b − d|` (strictly)
+///   into `(a, b, c), (c, d, a)`, otherwise into `(a, b, d), (d, b, c)`;
+/// * an n-gon with n > 4 is fan-triangulated from its first corner:
+///   `(p0, p_i, p_{i+1})` for `i = 1 .. n−2`.
+///
+/// Polygons with fewer than three corners add nothing (the readers reject them earlier).
+pub fn triangulate_polygon(poly: &[u32], positions: &[[f64; 3]], out: &mut Vec<[u32; 3]>) {
+    match *poly {
+        [a, b, c] => out.push([a, b, c]),
+        [a, b, c, d] => {
+            let dist2 = |i: u32, j: u32| {
+                let p = positions[i as usize];
+                let q = positions[j as usize];
+                (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)
+            };
+            if dist2(a, c) < dist2(b, d) {
+                out.push([a, b, c]);
+                out.push([c, d, a]);
+            } else {
+                out.push([a, b, d]);
+                out.push([d, b, c]);
+            }
+        }
+        _ if poly.len() > 4 => {
+            let p0 = poly[0];
+            out.extend(poly[1..].windows(2).map(|w| [p0, w[0], w[1]]));
+        }
+        _ => {}
+    }
+}
+
+/// The first vertex index that occurs twice in `poly`, if any. `scratch` is reused between calls
+/// to avoid allocating for large polygons.
+pub(crate) fn repeated_vertex(poly: &[u32], scratch: &mut Vec<u32>) -> Option<u32> {
+    if poly.len() <= 16 {
+        for (i, &v) in poly.iter().enumerate() {
+            if poly[i + 1..].contains(&v) {
+                return Some(v);
+            }
+        }
+        None
+    } else {
+        scratch.clear();
+        scratch.extend_from_slice(poly);
+        scratch.sort_unstable();
+        scratch.windows(2).find(|w| w[0] == w[1]).map(|w| w[0])
+    }
+}
+
+/// A [`MeshError::Format`] for `path`.
+pub(crate) fn format_error(path: &Path, what: impl Into<String>) -> MeshError {
+    MeshError::Format {
+        path: path.to_path_buf(),
+        what: what.into(),
+    }
+}
+
+/// Reads a whole file, mapping failures to [`MeshError::Io`] naming the file.
+pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>> {
+    fs::read(path).map_err(|source| MeshError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Validates a mesh before writing it, so that no file is produced from invalid data.
+pub(crate) fn check_for_writing(path: &Path, mesh: &TriMesh) -> Result<()> {
+    mesh.check_basic().map_err(|e| e.in_file(path))?;
+    if mesh.positions.len() > u32::MAX as usize {
+        return Err(format_error(
+            path,
+            format!("too many vertices to write: {}", mesh.positions.len()),
+        ));
+    }
+    Ok(())
+}
+
+/// Writes an `f64` so that it parses back to the identical bits: Rust's shortest round-trip
+/// formatting, in plain notation for moderate magnitudes and in exponent notation otherwise
+/// (keeps huge and tiny values short; `-0.0` prints as `-0`).
+#[inline]
+pub(crate) fn write_f64<W: Write>(w: &mut W, x: f64) -> std::io::Result<()> {
+    let a = x.abs();
+    if a == 0.0 || (1e-5..1e16).contains(&a) {
+        write!(w, "{x}")
+    } else {
+        write!(w, "{x:e}")
+    }
+}
+
+static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
+
+/// Writes `path` atomically: `body` writes into a buffered temporary file in the same directory,
+/// which is then flushed, synced to disk and renamed onto `path`. On any failure the temporary
+/// file is removed and a [`MeshError::Io`] naming `path` is returned.
+pub(crate) fn write_atomically<F>(path: &Path, body: F) -> Result<()>
+where
+    F: FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+{
+    let io_err = |source: std::io::Error| MeshError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let Some(name) = path.file_name() else {
+        return Err(format_error(path, "output path does not name a file"));
+    };
+    let dir: PathBuf = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let mut tmp_name = OsString::from(".");
+    tmp_name.push(name);
+    tmp_name.push(format!(
+        ".tmp-{}-{}",
+        std::process::id(),
+        TMP_COUNTER.fetch_add(1, Ordering::Relaxed)
+    ));
+    let tmp = dir.join(tmp_name);
+    let file = OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&tmp)
+        .map_err(io_err)?;
+    let result = (|| {
+        let mut w = BufWriter::with_capacity(1 << 16, file);
+        body(&mut w)?;
+        let file = w.into_inner().map_err(|e| e.into_error())?;
+        file.sync_all()?;
+        drop(file);
+        fs::rename(&tmp, path)
+    })();
+    if let Err(e) = result {
+        let _ = fs::remove_file(&tmp);
+        return Err(io_err(e));
+    }
+    Ok(())
+}
