@@ -83,6 +83,9 @@ pub struct GStats {
     pub frame_residual: f64,
     /// Largest distance `‖Y_tᵀ − R_t‖_F` removed by the SO(3) projection (0 for consistent data).
     pub max_projection: f64,
+    /// Whether the frame solve met its tolerance (false: it stopped at the iteration cap and the
+    /// result is the best iterate, still finite).
+    pub frame_converged: bool,
 }
 
 /// Per-topology state of `g`: tables, gauge choice, BFS tree and the two constant Cholesky
@@ -154,8 +157,8 @@ pub struct GWorkspace {
 }
 
 impl Reconstructor {
-    /// Builds the per-topology state: gauge choice (the lowest-index face and its first vertex
-    /// in each component), BFS tree, and the Cholesky factors of the dual-graph Laplacian and
+    /// Builds the per-topology state: gauge choice (the dual-graph centre face of each
+    /// component and its first vertex), BFS tree, and the Cholesky factors of the dual-graph Laplacian and
     /// the vertex Laplacian with the gauges removed.
     pub fn new(topo: &Topology) -> Result<Self> {
         let nf = topo.n_faces();
@@ -167,12 +170,24 @@ impl Reconstructor {
                 topo.n_vertex_components, ncomp
             )));
         }
+        // Gauge face per component: the (approximate) centre of its dual graph — the midpoint
+        // of a double-sweep BFS diameter path — which halves the longest path from the gauge
+        // and so the drift of frames on non-integrable data.
         let mut gauge_faces = vec![NONE; ncomp];
         for f in 0..nf {
             let c = topo.face_component[f] as usize;
             if gauge_faces[c] == NONE {
                 gauge_faces[c] = f as u32;
             }
+        }
+        for g in gauge_faces.iter_mut() {
+            let (far, _) = dual_bfs(topo, *g);
+            let (other, parent) = dual_bfs(topo, far);
+            let mut path = vec![other];
+            while *path.last().unwrap() != far {
+                path.push(parent[*path.last().unwrap() as usize]);
+            }
+            *g = path[path.len() / 2];
         }
         let mut gauge_vertices = vec![NONE; ncomp];
         for (c, &f) in gauge_faces.iter().enumerate() {
@@ -250,8 +265,9 @@ impl Reconstructor {
                 }
             }
         }
+        let simplicial = true;
         let dual_factor = if n_face_red > 0 {
-            SpdFactor::from_triplets(n_face_red, &trips)?
+            SpdFactor::from_triplets_with_layout(n_face_red, &trips, simplicial)?
         } else {
             SpdFactor::from_triplets(1, &[(0, 0, 1.0)])?
         };
@@ -278,7 +294,7 @@ impl Reconstructor {
             }
         }
         let vert_factor = if n_vert_red > 0 {
-            SpdFactor::from_triplets(n_vert_red, &trips)?
+            SpdFactor::from_triplets_with_layout(n_vert_red, &trips, simplicial)?
         } else {
             SpdFactor::from_triplets(1, &[(0, 0, 1.0)])?
         };
@@ -296,9 +312,9 @@ impl Reconstructor {
             vert_factor,
             gauge_couplings,
             face_degree,
-            max_pcg_iterations: 200,
+            max_pcg_iterations: 100,
             pcg_tolerance: 1e-13,
-            pcg_relative_tolerance: 1e-9,
+            pcg_relative_tolerance: 1e-6,
             pcg_passes: 4,
             pcg_pass_reduction: 1e-2,
         })
@@ -681,7 +697,10 @@ impl Reconstructor {
     /// `pcg_tolerance·sqrt(n)` or below `pcg_relative_tolerance` times its initial value.
     fn frame_pcg(&self, ws: &mut GWorkspace) -> Result<GStats> {
         if self.n_face_red == 0 {
-            return Ok(GStats::default());
+            return Ok(GStats {
+                frame_converged: true,
+                ..GStats::default()
+            });
         }
         let nf = self.topo.n_faces();
         let col_dot = |a: &[M3], b: &[M3]| -> [f64; 3] {
@@ -803,8 +822,28 @@ impl Reconstructor {
             pcg_iterations: total_it,
             frame_residual: res,
             max_projection: 0.0,
+            frame_converged: res <= tol,
         })
     }
+}
+
+/// BFS over the dual graph from `start`: the last face reached (a farthest one) and the BFS
+/// parent of every reached face.
+fn dual_bfs(topo: &Topology, start: u32) -> (u32, Vec<u32>) {
+    let mut parent = vec![NONE; topo.n_faces()];
+    parent[start as usize] = start;
+    let mut queue = std::collections::VecDeque::from([start]);
+    let mut last = start;
+    while let Some(f) = queue.pop_front() {
+        last = f;
+        for &(o, _) in topo.dual_neighbors_of(f as usize) {
+            if parent[o as usize] == NONE {
+                parent[o as usize] = f;
+                queue.push_back(o);
+            }
+        }
+    }
+    (last, parent)
 }
 
 /// `Q_e` of interior edge `e` from its five target lengths and its target angle φ*, by the

@@ -4,6 +4,7 @@
 use crate::error::{MeshError, Result};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::linalg::cholesky::{
     CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
     factorize_symbolic_cholesky,
@@ -39,16 +40,38 @@ impl SpdFactor {
         Self::new(&a)
     }
 
-    /// Symbolic + numeric factorization of `a` (its lower triangle is read).
+    /// [`SpdFactor::from_triplets`] with the layout choice of [`SpdFactor::with_layout`].
+    pub fn from_triplets_with_layout(
+        n: usize,
+        triplets: &[(usize, usize, f64)],
+        simplicial: bool,
+    ) -> Result<Self> {
+        let a = lower_csc(n, triplets)?;
+        Self::with_layout(&a, simplicial)
+    }
+
+    /// Symbolic + numeric factorization of `a` (its lower triangle is read); faer chooses
+    /// supernodal or simplicial storage.
     pub fn new(a: &SparseColMat<usize, f64>) -> Result<Self> {
+        Self::with_layout(a, false)
+    }
+
+    /// Like [`SpdFactor::new`]; `simplicial = true` forces the simplicial layout, whose
+    /// triangular solves are 2–3× faster on small, very sparse matrices (Laplacians of a few
+    /// 10k unknowns) where many solves follow one factorization.
+    pub fn with_layout(a: &SparseColMat<usize, f64>, simplicial: bool) -> Result<Self> {
         let n = a.nrows();
-        let symbolic = factorize_symbolic_cholesky(
-            a.symbolic(),
-            Side::Lower,
-            SymmetricOrdering::Amd,
-            CholeskySymbolicParams::default(),
-        )
-        .map_err(|e| MeshError::Numerical(format!("symbolic Cholesky failed: {e:?}")))?;
+        let params = CholeskySymbolicParams {
+            supernodal_flop_ratio_threshold: if simplicial {
+                SupernodalThreshold::FORCE_SIMPLICIAL
+            } else {
+                SupernodalThreshold::AUTO
+            },
+            ..Default::default()
+        };
+        let symbolic =
+            factorize_symbolic_cholesky(a.symbolic(), Side::Lower, SymmetricOrdering::Amd, params)
+                .map_err(|e| MeshError::Numerical(format!("symbolic Cholesky failed: {e:?}")))?;
         let mut this = Self {
             values: vec![0.0; symbolic.len_val()],
             symbolic,

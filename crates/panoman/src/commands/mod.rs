@@ -1,0 +1,7 @@
+//! One module per `panoman` subcommand.
+
+pub mod assets;
+pub mod bench;
+pub mod demo;
+pub mod roundtrip;
+pub mod template;

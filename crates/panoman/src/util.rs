@@ -1,0 +1,140 @@
+//! Shared helpers of the commands: timing, assets lookup, JSON output, test poses.
+
+use anyhow::{Context, Result};
+use panoman_human::assets::{self, AssetDir};
+use panoman_mesh::geom::V3;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Milliseconds elapsed since `t`.
+pub fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Runs `f` `runs` times after `warmup` untimed runs; returns per-run milliseconds.
+pub fn time_runs(warmup: usize, runs: usize, mut f: impl FnMut()) -> Vec<f64> {
+    for _ in 0..warmup {
+        f();
+    }
+    (0..runs)
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            ms_since(t)
+        })
+        .collect()
+}
+
+/// (median, min, max) of a sample.
+pub fn median_min_max(xs: &[f64]) -> (f64, f64, f64) {
+    let mut v = xs.to_vec();
+    v.sort_by(|a, b| a.total_cmp(b));
+    let n = v.len();
+    if n == 0 {
+        return (f64::NAN, f64::NAN, f64::NAN);
+    }
+    let med = if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    };
+    (med, v[0], v[n - 1])
+}
+
+/// The asset directory: `--assets` if given, else `$PANOMAN_ASSETS` or the user cache.
+pub fn asset_dir(arg: Option<&Path>) -> PathBuf {
+    arg.map(Path::to_path_buf)
+        .unwrap_or_else(assets::default_dir)
+}
+
+/// Opens the assets, failing with a one-line hint to run `panoman assets fetch`.
+pub fn open_assets(arg: Option<&Path>) -> Result<AssetDir> {
+    Ok(AssetDir::open(&asset_dir(arg))?)
+}
+
+/// Writes `text` to `path` atomically (temp file in the same directory, then rename).
+pub fn write_atomic(path: &Path, text: &str) -> Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .with_context(|| format!("{}: not a file path", path.display()))?;
+    let tmp = dir.join(format!(
+        ".{}.tmp-{}",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    std::fs::write(&tmp, text).with_context(|| tmp.display().to_string())?;
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        anyhow::anyhow!("{}: {e}", path.display())
+    })
+}
+
+/// A smooth, large, non-rigid test deformation of a standing body (Z up): the upper body
+/// twists about the vertical axis (up to ~70° at the head), the trunk leans forward and the
+/// arms (|x| beyond the shoulders) bend down. Used by `bench` and `demo` where no generator
+/// pose is needed; every vertex moves, so RL and RA are non-trivial everywhere.
+pub fn twist_bend_pose(rest: &[V3]) -> Vec<V3> {
+    let zmin = rest.iter().map(|p| p[2]).fold(f64::INFINITY, f64::min);
+    let zmax = rest.iter().map(|p| p[2]).fold(f64::NEG_INFINITY, f64::max);
+    let h = (zmax - zmin).max(1e-9);
+    rest.iter()
+        .map(|&[x, y, z]| {
+            let s = ((z - zmin) / h).clamp(0.0, 1.0); // 0 at the feet, 1 at the head
+            // Arms: bend about the y axis around the shoulder, growing with |x|.
+            let ax = (x.abs() - 0.18).max(0.0);
+            let bend = 0.9 * ax / 0.5 * x.signum();
+            let (sb, cb) = bend.sin_cos();
+            let (x, z) = if ax > 0.0 {
+                let x0 = 0.18 * x.signum();
+                let z0 = zmin + 0.82 * h;
+                let (dx, dz) = (x - x0, z - z0);
+                (x0 + cb * dx + sb * dz, z0 - sb * dx + cb * dz)
+            } else {
+                (x, z)
+            };
+            // Twist about the vertical axis, stronger towards the head.
+            let a = 1.2 * s * s;
+            let (sa, ca) = a.sin_cos();
+            let (x, y) = (ca * x - sa * y, sa * x + ca * y);
+            // Forward lean of the trunk.
+            let lean = 0.25 * s * s;
+            [x, y - lean * (z - zmin) * 0.3, z - 0.05 * lean]
+        })
+        .collect()
+}
+
+/// SplitMix64 — a tiny deterministic generator for benchmark and demo noise.
+pub struct SplitMix(pub u64);
+
+impl SplitMix {
+    /// Next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    /// Standard normal sample (Box–Muller).
+    pub fn normal(&mut self) -> f64 {
+        let u1 = ((self.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+        let u2 = (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    }
+}
+
+/// Adds i.i.d. Gaussian noise to an RLA: RL gets relative length noise `len_sigma`
+/// (ℓ ← ℓ·(1 + σ n)), RA gets `angle_sigma` radians.
+pub fn add_rla_noise(rla: &mut panoman_mesh::Rla, len_sigma: f64, angle_sigma: f64, seed: u64) {
+    let mut rng = SplitMix(seed);
+    for rl in rla.rl.iter_mut() {
+        *rl = (1.0 + *rl) * (1.0 + len_sigma * rng.normal()) - 1.0;
+    }
+    for ra in rla.ra.iter_mut() {
+        *ra += angle_sigma * rng.normal();
+    }
+}
