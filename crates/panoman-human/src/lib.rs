@@ -20,3 +20,4 @@ pub mod phenotype;
 pub mod rig;
 pub mod skinning;
 pub mod targets;
+pub mod outputs;
