@@ -47,7 +47,7 @@ impl Rigid {
 pub fn nearest_rotation(m: &M3) -> M3 {
     let d = det(m);
     let scale: f64 = m.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
-    if !(scale > 0.0) || !scale.is_finite() {
+    if scale.is_nan() || scale <= 0.0 || !scale.is_finite() {
         return crate::geom::IDENTITY;
     }
     if d > 1e-6 * scale * scale * scale {
@@ -224,7 +224,7 @@ pub fn rigid_align(a: &[V3], b: &[V3], weights: Option<&[f64]>) -> Rigid {
             cb[c] += wi * b[i][c];
         }
     }
-    if !(wsum > 0.0) {
+    if wsum.is_nan() || wsum <= 0.0 {
         return Rigid::IDENTITY;
     }
     for c in 0..3 {

@@ -1,3 +1,4 @@
+#![allow(clippy::needless_range_loop)]
 //! Tests of the topology tables, RLA, hinge gradients, rotations and the reconstruction g.
 
 mod common;

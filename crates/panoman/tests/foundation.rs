@@ -41,10 +41,10 @@ fn template() -> Template {
 /// Rest and posed meshes of a fixture case, restricted to the template's vertices.
 fn case_meshes(t: &Template, case: &str) -> (TriMesh, TriMesh) {
     let dir = fixtures().join("anny-oracle");
-    let (_, bmi) = read_npy_f64(&dir.join("base_mesh_vertex_indices.npy")).unwrap();
+    let (_, bmi) = read_npy_f64(dir.join("base_mesh_vertex_indices.npy")).unwrap();
     let bmi: Vec<u32> = bmi.iter().map(|&x| x as u32).collect();
     let restrict = |file: &str| -> Vec<[f64; 3]> {
-        let (shape, v) = read_npy_f64(&dir.join(file)).unwrap();
+        let (shape, v) = read_npy_f64(dir.join(file)).unwrap();
         assert_eq!(shape, vec![bmi.len(), 3]);
         t.base_index
             .iter()
