@@ -1,0 +1,30 @@
+//! Error type of the model crate; every variant renders as one line.
+
+use std::path::PathBuf;
+
+/// Errors of training, evaluation and model/dataset files.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// A file could not be read or written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file is malformed, truncated or inconsistent; `what` says how.
+    #[error("{}: {what}", path.display())]
+    Format { path: PathBuf, what: String },
+    /// Inputs of the wrong size or kind.
+    #[error("invalid input: {0}")]
+    Invalid(String),
+    /// A numerical step failed.
+    #[error("numerical failure: {0}")]
+    Numerical(String),
+    /// An error of the mesh kernel.
+    #[error(transparent)]
+    Mesh(#[from] panoman_mesh::MeshError),
+}
+
+/// Result alias of this crate.
+pub type Result<T, E = ModelError> = std::result::Result<T, E>;
