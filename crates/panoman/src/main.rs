@@ -4,6 +4,7 @@
 //! one line `error: <file>: <what is wrong>`. Outputs are written atomically.
 
 mod commands;
+mod render;
 mod util;
 
 use clap::{Parser, Subcommand};
@@ -30,6 +31,10 @@ enum Command {
     Bench(commands::bench::BenchArgs),
     /// End-to-end demo: assets, templates, a posed mesh, RLA round trip, robustness, timings.
     Demo(commands::demo::DemoArgs),
+    /// One Anny-equivalent mesh from a parameter file (anny, full or small topology).
+    Generate(commands::generate::GenerateArgs),
+    /// Render meshes side by side (with keypoints) to a PNG (front, side or back view).
+    Render(commands::render::RenderArgs),
 }
 
 fn main() -> ExitCode {
@@ -47,6 +52,8 @@ fn main() -> ExitCode {
         Command::Roundtrip(a) => commands::roundtrip::run(a),
         Command::Bench(a) => commands::bench::run(a),
         Command::Demo(a) => commands::demo::run(a),
+        Command::Generate(a) => commands::generate::run(a),
+        Command::Render(a) => commands::render::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -5,3 +5,5 @@ pub mod bench;
 pub mod demo;
 pub mod roundtrip;
 pub mod template;
+pub mod generate;
+pub mod render;
