@@ -21,3 +21,4 @@ pub mod rig;
 pub mod skinning;
 pub mod targets;
 pub mod outputs;
+pub mod sampling;
