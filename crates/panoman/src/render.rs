@@ -574,7 +574,7 @@ impl Framebuffer {
     fn draw_disc(&mut self, cx: f64, cy: f64, radius: f64, color: Rgb) {
         let fill = color.map(|v| v as f32 / 255.0);
         let edge = fill.map(|v| v * 0.3);
-        let inner = (radius * 0.72).max(radius - 3.0);
+        let inner = radius - (0.18 * radius).max(1.0);
         let x_lo = (cx - radius).floor().max(0.0) as usize;
         let y_lo = (cy - radius).floor().max(0.0) as usize;
         let x_hi = (cx + radius).ceil().min(self.w as f64 - 1.0);

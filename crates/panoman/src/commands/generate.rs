@@ -20,6 +20,14 @@ use std::time::Instant;
 /// "root_translation_m": [0, 0, 0]}`); missing keys mean defaults (`{}` is the default body in
 /// its rest pose).
 #[derive(Args, Debug)]
+#[command(after_help = "Examples:\n  \
+    panoman generate --params case.json --out posed.obj --rest rest.obj\n  \
+    panoman generate --params case.json --out posed.ply --topology full\n\n\
+    case.json (every key optional; `{}` is the default body in its rest pose):\n  \
+    {\"phenotype\": {\"gender\": 0.2, \"age\": 0.7}, \"facial_actions\": {\"jawOpen\": 0.4},\n   \
+    \"local_changes\": {\"stomach-pregnant-incr\": -0.3},\n   \
+    \"pose_euler_xyz_deg\": {\"lowerarm01.L\": [60, 0, 0]}, \"root_rotation_z_deg\": 30,\n   \
+    \"root_translation_m\": [0, 0, 0]}")]
 pub struct GenerateArgs {
     /// Parameter file (JSON): phenotype, facial_actions, local_changes, pose_euler_xyz_deg,
     /// root_rotation_z_deg, root_translation_m; every key optional.
