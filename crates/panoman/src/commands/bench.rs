@@ -1,10 +1,15 @@
 //! `panoman bench`: timings of the kernels on the real templates.
 
-use crate::util::{add_rla_noise, median_min_max, time_runs, twist_bend_pose};
+use crate::util::{SplitMix, add_rla_noise, median_min_max, time_runs, twist_bend_pose};
 use anyhow::Result;
 use clap::Args;
-use panoman_human::template::{full_template, small_template};
+use panoman_human::assets::AssetDir;
+use panoman_human::generator::{Generator, GeneratorOptions, Posed};
+use panoman_human::outputs::{OutputTopology, TopologyMap};
+use panoman_human::params::{PoseParams, ShapeParams};
+use panoman_human::template::{SmallTopology, Template, full_template, small_template};
 use panoman_mesh::{Reconstructor, RestGeometry, Rla, Topology, TriMesh, io};
+use rayon::prelude::*;
 use serde_json::json;
 use std::path::PathBuf;
 
@@ -82,6 +87,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
     });
     rep.report("ply_read_full", &t, "(binary)");
     let _ = std::fs::remove_dir_all(&dir);
+    bench_generator(&rep, &assets, &full, &small, runs)?;
     Ok(())
 }
 
@@ -129,6 +135,180 @@ fn bench_topology(rep: &Reporter, tag: &str, rest: &TriMesh, runs: usize) -> Res
         &format!("g_{tag}_noisy"),
         &t,
         &format!("(0.2 % length + 0.01 rad angle noise, {it} PCG iterations)"),
+    );
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Generator throughput: a new identity, posing one identity onto the full template, and a
+// batch of poses across all cores.
+
+/// Uniform ranges (degrees, local Euler XYZ, left side) of anny-assets.md §7.3 for the bones
+/// a body-pose sampler moves; right-side bones mirror them as (x, −y, −z). A stand-in for
+/// the proper pose samplers.
+#[rustfmt::skip]
+const POSE_RANGES: &[(&str, [(f64, f64); 3])] = &[
+    ("spine05", [(-8.0, 12.0), (-8.0, 8.0), (-6.0, 6.0)]),
+    ("spine04", [(-8.0, 12.0), (-8.0, 8.0), (-6.0, 6.0)]),
+    ("spine03", [(-8.0, 12.0), (-8.0, 8.0), (-6.0, 6.0)]),
+    ("spine02", [(-6.0, 10.0), (-8.0, 8.0), (-6.0, 6.0)]),
+    ("spine01", [(-6.0, 10.0), (-8.0, 8.0), (-6.0, 6.0)]),
+    ("neck01", [(-10.0, 15.0), (-15.0, 15.0), (-10.0, 10.0)]),
+    ("neck02", [(-10.0, 15.0), (-15.0, 15.0), (-10.0, 10.0)]),
+    ("neck03", [(-10.0, 15.0), (-15.0, 15.0), (-10.0, 10.0)]),
+    ("head", [(-15.0, 20.0), (-20.0, 20.0), (-12.0, 12.0)]),
+    ("jaw", [(0.0, 22.0), (-3.0, 3.0), (-4.0, 4.0)]),
+    ("clavicle.L", [(-8.0, 12.0), (-5.0, 5.0), (-8.0, 15.0)]),
+    ("shoulder01.L", [(-8.0, 8.0), (-5.0, 5.0), (-8.0, 12.0)]),
+    ("upperarm01.L", [(-40.0, 90.0), (-45.0, 45.0), (-40.0, 90.0)]),
+    ("upperarm02.L", [(0.0, 0.0), (-30.0, 30.0), (0.0, 0.0)]),
+    ("lowerarm01.L", [(-35.0, 95.0), (-20.0, 20.0), (0.0, 0.0)]),
+    ("lowerarm02.L", [(0.0, 0.0), (-45.0, 45.0), (0.0, 0.0)]),
+    ("wrist.L", [(-20.0, 20.0), (-10.0, 10.0), (-60.0, 50.0)]),
+    ("upperleg01.L", [(-90.0, 25.0), (-30.0, 30.0), (-35.0, 15.0)]),
+    ("upperleg02.L", [(0.0, 0.0), (-15.0, 15.0), (0.0, 0.0)]),
+    ("lowerleg01.L", [(0.0, 120.0), (-8.0, 8.0), (0.0, 0.0)]),
+    ("lowerleg02.L", [(0.0, 0.0), (-10.0, 10.0), (0.0, 0.0)]),
+    ("foot.L", [(-20.0, 40.0), (-10.0, 10.0), (-15.0, 15.0)]),
+    ("finger1-1.L", [(-15.0, 35.0), (-15.0, 15.0), (-25.0, 25.0)]),
+    ("finger1-2.L", [(0.0, 55.0), (0.0, 0.0), (-5.0, 5.0)]),
+    ("finger1-3.L", [(-5.0, 75.0), (0.0, 0.0), (0.0, 0.0)]),
+    ("metacarpal1.L", [(0.0, 6.0), (0.0, 0.0), (-3.0, 3.0)]),
+    ("metacarpal2.L", [(0.0, 6.0), (0.0, 0.0), (-3.0, 3.0)]),
+    ("metacarpal3.L", [(0.0, 8.0), (0.0, 0.0), (-3.0, 3.0)]),
+    ("metacarpal4.L", [(0.0, 10.0), (0.0, 0.0), (-3.0, 3.0)]),
+    ("finger2-1.L", [(-15.0, 85.0), (0.0, 0.0), (-12.0, 12.0)]),
+    ("finger2-2.L", [(0.0, 100.0), (0.0, 0.0), (0.0, 0.0)]),
+    ("finger2-3.L", [(0.0, 70.0), (0.0, 0.0), (0.0, 0.0)]),
+    ("finger3-1.L", [(-15.0, 85.0), (0.0, 0.0), (-12.0, 12.0)]),
+    ("finger3-2.L", [(0.0, 100.0), (0.0, 0.0), (0.0, 0.0)]),
+    ("finger3-3.L", [(0.0, 70.0), (0.0, 0.0), (0.0, 0.0)]),
+    ("finger4-1.L", [(-15.0, 85.0), (0.0, 0.0), (-12.0, 12.0)]),
+    ("finger4-2.L", [(0.0, 100.0), (0.0, 0.0), (0.0, 0.0)]),
+    ("finger4-3.L", [(0.0, 70.0), (0.0, 0.0), (0.0, 0.0)]),
+    ("finger5-1.L", [(-15.0, 85.0), (0.0, 0.0), (-12.0, 12.0)]),
+    ("finger5-2.L", [(0.0, 100.0), (0.0, 0.0), (0.0, 0.0)]),
+    ("finger5-3.L", [(0.0, 70.0), (0.0, 0.0), (0.0, 0.0)]),
+];
+
+fn uniform(rng: &mut SplitMix, lo: f64, hi: f64) -> f64 {
+    lo + (hi - lo) * ((rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
+}
+
+/// A random pose: every bone of [`POSE_RANGES`] (and its `.R` mirror) uniform in its range,
+/// eyes with one shared gaze, a random turn about the vertical.
+fn random_pose(bones: &[String], rng: &mut SplitMix) -> PoseParams {
+    let mut euler = vec![[0.0; 3]; bones.len()];
+    let index = |name: &str| bones.iter().position(|b| b == name);
+    for (name, r) in POSE_RANGES {
+        let mut sides = vec![(name.to_string(), [1.0, 1.0, 1.0])];
+        if let Some(stem) = name.strip_suffix(".L") {
+            sides.push((format!("{stem}.R"), [1.0, -1.0, -1.0]));
+        }
+        for (bone, sign) in sides {
+            if let Some(c) = index(&bone) {
+                euler[c] = std::array::from_fn(|k| sign[k] * uniform(rng, r[k].0, r[k].1));
+            }
+        }
+    }
+    let gaze = [uniform(rng, -20.0, 20.0), 0.0, uniform(rng, -30.0, 30.0)];
+    for eye in ["eye.L", "eye.R"] {
+        if let Some(c) = index(eye) {
+            euler[c] = gaze;
+        }
+    }
+    PoseParams {
+        euler_deg: euler,
+        root_rotation_z_deg: uniform(rng, -180.0, 180.0),
+        root_translation: [0.0; 3],
+    }
+}
+
+/// A random identity: the six default phenotype values uniform in [0, 1], 8 face units.
+fn random_shape(rng: &mut SplitMix) -> ShapeParams {
+    let mut shape = ShapeParams::default();
+    let p = &mut shape.phenotype;
+    for v in [
+        &mut p.gender,
+        &mut p.age,
+        &mut p.muscle,
+        &mut p.weight,
+        &mut p.height,
+        &mut p.proportions,
+    ] {
+        *v = uniform(rng, 0.0, 1.0);
+    }
+    for _ in 0..8 {
+        let k = (rng.next_u64() % shape.facial_actions.len() as u64) as usize;
+        shape.facial_actions[k] = uniform(rng, 0.0, 1.0);
+    }
+    shape
+}
+
+fn bench_generator(
+    rep: &Reporter,
+    assets: &AssetDir,
+    full: &Template,
+    small: &SmallTopology,
+    runs: usize,
+) -> Result<()> {
+    let generator = Generator::load(assets, GeneratorOptions::default())?;
+    let map = TopologyMap::new(&generator, full, small)?;
+    let mut rng = SplitMix(2024);
+    let shapes: Vec<ShapeParams> = (0..3).map(|_| random_shape(&mut rng)).collect();
+    let poses: Vec<PoseParams> = (0..3)
+        .map(|_| random_pose(generator.bone_names(), &mut rng))
+        .collect();
+
+    // A new identity: rest mesh (blendshapes), joints, rest frames.
+    let mut k = 0;
+    let t = time_runs(1, runs, || {
+        let id = generator.identity(&shapes[k % 3]).expect("identity");
+        std::hint::black_box(id.rest_vertices().len());
+        k += 1;
+    });
+    rep.report("gen_identity", &t, "(rest mesh + joints + rest frames)");
+
+    // Posing one identity (FK + LBS) and mapping it to the full template.
+    let id = generator.identity(&shapes[0])?;
+    let mut posed = Posed::default();
+    let mut out = Vec::new();
+    let mut k = 0;
+    let t = time_runs(1, runs, || {
+        id.pose_into(&poses[k % 3], &mut posed);
+        map.map_into(OutputTopology::Full, &posed.vertices, &mut out);
+        std::hint::black_box(out.len());
+        k += 1;
+    });
+    rep.report("gen_pose_full", &t, "(FK + LBS + gather, one mesh)");
+
+    // A batch of poses across all cores (time per mesh).
+    const BATCH: usize = 200;
+    let batch: Vec<PoseParams> = (0..BATCH)
+        .map(|_| random_pose(generator.bone_names(), &mut rng))
+        .collect();
+    let t: Vec<f64> = time_runs(1, runs.min(10), || {
+        batch.par_iter().for_each_init(
+            || (Posed::default(), Vec::new()),
+            |(posed, out), pose| {
+                id.pose_into(pose, posed);
+                map.map_into(OutputTopology::Full, &posed.vertices, out);
+                std::hint::black_box(out.len());
+            },
+        );
+    })
+    .into_iter()
+    .map(|ms| ms / BATCH as f64)
+    .collect();
+    let (med, _, _) = median_min_max(&t);
+    rep.report(
+        "gen_pose_full_batch",
+        &t,
+        &format!(
+            "(per mesh; {:.0} meshes/s on {} threads, batches of {BATCH})",
+            1e3 / med,
+            rayon::current_num_threads()
+        ),
     );
     Ok(())
 }
