@@ -15,10 +15,10 @@ pub mod template;
 
 pub use error::{HumanError, Result};
 pub mod generator;
+pub mod outputs;
 pub mod params;
 pub mod phenotype;
 pub mod rig;
+pub mod sampling;
 pub mod skinning;
 pub mod targets;
-pub mod outputs;
-pub mod sampling;

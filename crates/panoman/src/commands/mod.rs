@@ -3,7 +3,7 @@
 pub mod assets;
 pub mod bench;
 pub mod demo;
-pub mod roundtrip;
-pub mod template;
 pub mod generate;
 pub mod render;
+pub mod roundtrip;
+pub mod template;
