@@ -14,6 +14,7 @@ pub mod npy;
 pub mod template;
 
 pub use error::{HumanError, Result};
+pub mod dataset;
 pub mod generator;
 pub mod outputs;
 pub mod params;

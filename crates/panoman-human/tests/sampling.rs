@@ -475,3 +475,37 @@ fn joint_volume_report() {
         rel[0].0, rel[0].1, rel[0].2, rel[150].0, rel[299].0
     );
 }
+
+/// How far below the neck each face unit reaches (full template, default identity): the
+/// largest offset of a vertex below `neck01`'s head − 2 cm, and the lowest vertex moved by
+/// more than 0.01 mm.
+#[test]
+#[ignore = "measurement; run with --ignored --nocapture"]
+fn face_unit_reach() {
+    let f = fx();
+    let g = &f.generator;
+    let neck = g.bone_names().iter().position(|b| b == "neck01").unwrap();
+    let base = g.identity(&ShapeParams::default()).unwrap();
+    let neck_z = base.bone_heads()[neck][2];
+    let rest = f.map.to_full(base.rest_vertices());
+    for (k, unit) in FACE_UNITS.iter().enumerate() {
+        let mut s = ShapeParams::default();
+        s.facial_actions[k] = 1.0;
+        let v = f.map.to_full(g.identity(&s).unwrap().rest_vertices());
+        let (mut below, mut lowest) = (0.0f64, f64::INFINITY);
+        for (p, q) in v.iter().zip(&rest) {
+            let d = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
+            if q[2] < neck_z - 0.02 {
+                below = below.max(d);
+            }
+            if d > 1e-5 {
+                lowest = lowest.min(q[2]);
+            }
+        }
+        println!(
+            "{unit:>20}: below neck−2cm {:.3} mm; lowest moved vertex {:+.1} cm from neck01",
+            below * 1e3,
+            (lowest - neck_z) * 100.0
+        );
+    }
+}

@@ -35,6 +35,8 @@ enum Command {
     Generate(commands::generate::GenerateArgs),
     /// Render meshes side by side (with keypoints) to a PNG (front, side or back view).
     Render(commands::render::RenderArgs),
+    /// Synthesize the training data H (rest, body poses, expressions, hand gestures).
+    Synth(commands::synth::SynthArgs),
 }
 
 fn main() -> ExitCode {
@@ -54,6 +56,7 @@ fn main() -> ExitCode {
         Command::Demo(a) => commands::demo::run(a),
         Command::Generate(a) => commands::generate::run(a),
         Command::Render(a) => commands::render::run(a),
+        Command::Synth(a) => commands::synth::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -6,4 +6,5 @@ pub mod demo;
 pub mod generate;
 pub mod render;
 pub mod roundtrip;
+pub mod synth;
 pub mod template;
