@@ -342,3 +342,44 @@ fn bench_prints_one_json_object_per_line() {
         );
     }
 }
+
+/// Subcommand names listed under "Commands:" in a `--help` text.
+fn subcommands(help: &str) -> Vec<String> {
+    help.lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| !l.trim().is_empty())
+        .filter_map(|l| l.split_whitespace().next().map(str::to_string))
+        .filter(|c| c != "help")
+        .collect()
+}
+
+#[test]
+fn every_command_has_help_with_an_example() {
+    let top = String::from_utf8(panoman(&["--help"]).stdout).unwrap();
+    let cmds = subcommands(&top);
+    assert!(cmds.len() >= 5, "{top}");
+    let mut checked = 0;
+    for c in &cmds {
+        let help = String::from_utf8(panoman(&[c, "--help"]).stdout).unwrap();
+        let subs = subcommands(&help);
+        if subs.is_empty() {
+            assert!(
+                help.contains("Example"),
+                "`panoman {c} --help` has no example:\n{help}"
+            );
+            checked += 1;
+        } else {
+            for s in subs {
+                let o = panoman(&[c, &s, "--help"]);
+                let help = String::from_utf8(o.stdout).unwrap();
+                assert!(
+                    help.contains("Example"),
+                    "`panoman {c} {s} --help` has no example:\n{help}"
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked >= 6);
+}

