@@ -15,7 +15,7 @@
 //!
 //! # Angles
 //! Poses are [`Theta`]: local Euler angles `[x, y, z]` in degrees (`R = Rz(z)·Ry(y)·Rx(x)`,
-//! [`crate::params::PoseParams`]) for the [`POSABLE_BONES`]. The samplers reason in the
+//! [`crate::params::PoseParams`]) for the [`posable_bones`]. The samplers reason in the
 //! *left-side* convention of anny-assets.md §7.1/§7.3 and store right-side bones mirrored as
 //! `(x, −y, −z)`; the eyes take the same angles on both sides (conjugate gaze, §7.1). Every
 //! sampled angle lies inside [`bone_range`] (§7.3, with the measured twist limits
@@ -455,7 +455,7 @@ pub const FACE_BONES: [&str; 3] = ["jaw", "eye.L", "eye.R"];
 
 /// Number of posable bones: 33 body + 2 × 19 hand + 3 face.
 pub const N_POSABLE: usize = 74;
-/// First [`POSABLE_BONES`] slot of the left hand (19 slots `HAND_BONES` + `.L`).
+/// First [`posable_bones`] slot of the left hand (19 slots `HAND_BONES` + `.L`).
 pub const LEFT_HAND_SLOT: usize = 33;
 /// First slot of the right hand (19 slots `HAND_BONES` + `.R`).
 pub const RIGHT_HAND_SLOT: usize = 52;
@@ -718,7 +718,7 @@ pub const LEG_MODES: [(&str, f64); 4] = [
 ///   `TN(0, 3; ±8)`, foot x `+TN(0, 6; −20, 40)`, foot y `TN(0, 3; ±10)`, foot z
 ///   `TN(0, 5; ±15)`.
 /// * **`*02` twists**: `TN(0, L/2; ±L)` with `L` from [`TWIST_LIMIT_DEG`].
-/// * **Hands**: [`HandSampler::relaxed`] per hand.
+/// * **Hands**: [`HandSampler::relaxed_into`] per hand.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BodyPoseSampler;
 
