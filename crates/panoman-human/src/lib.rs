@@ -19,6 +19,7 @@ pub mod generator;
 pub mod outputs;
 pub mod params;
 pub mod phenotype;
+pub mod regions;
 pub mod rig;
 pub mod sampling;
 pub mod skinning;
