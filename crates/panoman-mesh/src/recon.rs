@@ -108,7 +108,8 @@ pub struct Reconstructor {
     gauge_couplings: Vec<(u32, u32, f64)>,
     /// Interior-edge degree of each face (diagonal of K).
     face_degree: Vec<f64>,
-    /// Maximum PCG iterations of the frame solve.
+    /// Maximum PCG iterations of the frame solve (integrable data needs 0, model-like
+    /// blended RLA ~30; beyond the cap the best iterate is used).
     pub max_pcg_iterations: usize,
     /// Absolute PCG tolerance on each column's residual, relative to sqrt(#unknown faces).
     pub pcg_tolerance: f64,
@@ -312,7 +313,7 @@ impl Reconstructor {
             vert_factor,
             gauge_couplings,
             face_degree,
-            max_pcg_iterations: 100,
+            max_pcg_iterations: 60,
             pcg_tolerance: 1e-13,
             pcg_relative_tolerance: 1e-6,
             pcg_passes: 4,
