@@ -95,6 +95,13 @@ pub struct SplocsOptions {
     pub d_max_ratio: f64,
     /// Weight normalization (§3.6); default [`WeightNorm::MaxAbs`].
     pub weight_norm: WeightNorm,
+    /// Safeguard the weight update (default true): when dividing W[:,k] by m > 1 would raise
+    /// the objective (the ℓ1 penalty of C_k grows by (m − 1)·Σ_e Λ|C_k,e|, to first order in
+    /// m − 1, while the fit gains only to second order), take the box-projected column
+    /// clip(u, −1, 1) instead (projected BCD on W ∈ [−1, 1]^N). This makes every outer
+    /// iteration non-increasing (§3.8). With false, the plain option-(a)/(b) step is always
+    /// taken and the objective can rise slightly from one iteration to the next.
+    pub monotone_weights: bool,
     /// Adapt centres and radii after the C updates (§3.4).
     pub adapt_supports: bool,
     /// Supports adapt, and dead components are re-seeded, only after outer iterations
@@ -141,6 +148,7 @@ impl SplocsOptions {
             d_min_bounds,
             d_max_ratio: 4.0,
             weight_norm: WeightNorm::MaxAbs,
+            monotone_weights: true,
             adapt_supports: true,
             adapt_until: 20,
             init_corr_threshold: 0.5,
@@ -1160,17 +1168,17 @@ impl<'a, D: ColumnDistances> Solver<'a, D> {
         self.z.copy_from_slice(&self.c);
         let cs = COL_CHUNK * k;
         let inv_rho = 1.0 / rho;
+        // T = F + ρ(Z − U)
+        {
+            let (f, z, u) = (&self.f, &self.z, &self.u);
+            self.t.par_chunks_mut(cs).enumerate().for_each(|(ci, tc)| {
+                let o = ci * cs;
+                for (i, tv) in tc.iter_mut().enumerate() {
+                    *tv = f[o + i] + rho * (z[o + i] - u[o + i]);
+                }
+            });
+        }
         for _ in 0..self.opts.admm_iters {
-            // T = F + ρ(Z − U)
-            {
-                let (f, z, u) = (&self.f, &self.z, &self.u);
-                self.t.par_chunks_mut(cs).enumerate().for_each(|(ci, tc)| {
-                    let o = ci * cs;
-                    for (i, tv) in tc.iter_mut().enumerate() {
-                        *tv = f[o + i] + rho * (z[o + i] - u[o + i]);
-                    }
-                });
-            }
             // S = (WᵀW + ρI)⁻¹ T
             matmul(
                 MatMut::from_column_major_slice_mut(&mut self.s, k, m),
@@ -1180,20 +1188,28 @@ impl<'a, D: ColumnDistances> Solver<'a, D> {
                 1.0,
                 Par::rayon(0),
             );
-            // Z = soft(S + U, Λ/ρ), U = U + S − Z
+            // Z = soft(S + U, Λ/ρ), U = U + S − Z, and the next T = F + ρ(Z − U), fused.
             {
-                let (s, lam) = (&self.s, &self.lam);
+                let (s, lam, f) = (&self.s, &self.lam, &self.f);
                 self.z
                     .par_chunks_mut(cs)
                     .zip(self.u.par_chunks_mut(cs))
+                    .zip(self.t.par_chunks_mut(cs))
                     .enumerate()
-                    .for_each(|(ci, (zc, uc))| {
+                    .for_each(|(ci, ((zc, uc), tc))| {
                         let o = ci * cs;
-                        for (i, (zv, uv)) in zc.iter_mut().zip(uc.iter_mut()).enumerate() {
+                        for (i, ((zv, uv), tv)) in zc
+                            .iter_mut()
+                            .zip(uc.iter_mut())
+                            .zip(tc.iter_mut())
+                            .enumerate()
+                        {
                             let v = s[o + i] + *uv;
                             let zz = soft_threshold(v, lam[o + i] * inv_rho);
+                            let un = v - zz;
                             *zv = zz;
-                            *uv = v - zz;
+                            *uv = un;
+                            *tv = f[o + i] + rho * (zz - un);
                         }
                     });
             }
@@ -1515,7 +1531,7 @@ pub fn fit_col_major<D: ColumnDistances>(
             n,
             k,
             opts.weight_norm,
-            Some(&sv.pen),
+            opts.monotone_weights.then_some(&sv.pen[..]),
             opts.dead_tol,
         );
         sv.rescale_rows(&step.scale);
@@ -1580,15 +1596,16 @@ pub fn fit_col_major<D: ColumnDistances>(
             break;
         }
     }
-    // Final objective pieces (fit from F-free formula with the final W, C).
+    // Final fit ½‖X − WC‖²: the last record's (W and C unchanged since); without iterations,
+    // from the Gram formulas.
+    let fit_final = match history.last() {
+        Some(r) => r.fit,
+        None => sv.objective_from_p().0,
+    };
     let a0 = gram_of_cols(&sv.w, n, k);
-    let g = gram_of_rows(&sv.c, k, m);
-    let mut p = vec![0.0; n * k];
-    x_ct(&sv.x, n, m, &sv.c, k, &mut p, &mut sv.buf);
-    let fit_final = fit_from_p(sv.x_sq, &sv.w, &p, &a0, &g);
     let explained_variance = 1.0 - 2.0 * fit_final / sv.x_sq;
     let component_energy: Vec<f64> = (0..k)
-        .map(|kk| a0[kk * k + kk] * g[kk * k + kk] / sv.x_sq)
+        .map(|kk| a0[kk * k + kk] * sv.g[kk * k + kk] / sv.x_sq)
         .collect();
 
     // Output: C / s as sparse rows, W as f32.

@@ -111,7 +111,11 @@ fn soft_threshold_matches_brute_force() {
     let mut rng = Rng(7);
     for _ in 0..300 {
         let y = rng.range(-3.0, 3.0);
-        let t = if rng.uniform() < 0.1 { 0.0 } else { rng.range(0.0, 2.0) };
+        let t = if rng.uniform() < 0.1 {
+            0.0
+        } else {
+            rng.range(0.0, 2.0)
+        };
         let obj = |z: f64| 0.5 * (z - y) * (z - y) + t * z.abs();
         // Dense grid, then golden-section refinement around the best grid point.
         let (lo, hi, steps) = (-4.0, 4.0, 8000);
@@ -165,6 +169,7 @@ fn mul(a: &[f64], b: &[f64], r: usize, k: usize, c: usize) -> Vec<f64> {
 
 /// Explicit-residual BCD weight update (§3.6) with the same normalization and safeguard;
 /// rescales C in place. Returns the scale factors.
+#[allow(clippy::too_many_arguments)]
 fn explicit_update(
     x: &[f64],
     w: &mut [f64],
@@ -210,7 +215,11 @@ fn explicit_update(
         if let Some(pen) = pen {
             let delta = fit(&wn) - fit(&w_old) + (mm - 1.0) * pen[kk];
             if delta > 0.0 {
-                let lo = if norm == WeightNorm::MaxAbs { -1.0 } else { 0.0 };
+                let lo = if norm == WeightNorm::MaxAbs {
+                    -1.0
+                } else {
+                    0.0
+                };
                 wn = u.iter().map(|&v| v.clamp(lo, 1.0)).collect();
                 mm = wn.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
             }
@@ -298,8 +307,14 @@ fn gram_trick_weight_update_equals_explicit_residual() {
         };
         let p_e = mul(&x, &ct_e, n, m, k);
         let g_e = mul(&c_e, &ct_e, k, m, k);
-        let dp = p.iter().zip(&p_e).fold(0.0f64, |a, (u, v)| a.max((u - v).abs()));
-        let dg = g.iter().zip(&g_e).fold(0.0f64, |a, (u, v)| a.max((u - v).abs()));
+        let dp = p
+            .iter()
+            .zip(&p_e)
+            .fold(0.0f64, |a, (u, v)| a.max((u - v).abs()));
+        let dg = g
+            .iter()
+            .zip(&g_e)
+            .fold(0.0f64, |a, (u, v)| a.max((u - v).abs()));
         assert!(dp < 1e-10 && dg < 1e-10, "P {dp}, G {dg}");
         // W is normalized.
         for kk in 0..k {
@@ -326,7 +341,11 @@ fn safeguarded_weight_update_never_increases_the_objective() {
         let lam: Vec<f64> = (0..k * m).map(|_| rng.range(0.0, 3.0)).collect();
         let objective = |w: &[f64], c: &[f64]| -> f64 {
             let wc = mul(w, c, n, k, m);
-            let fit: f64 = x.iter().zip(&wc).map(|(a, b)| (a - b) * (a - b)).sum::<f64>();
+            let fit: f64 = x
+                .iter()
+                .zip(&wc)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>();
             let pen: f64 = lam.iter().zip(c).map(|(l, v)| l * v.abs()).sum();
             0.5 * fit + pen
         };
@@ -348,7 +367,13 @@ fn residual_free_objective_equals_explicit() {
     let x: Vec<f32> = (0..n * m).map(|_| rng.normal() as f32).collect();
     let w: Vec<f64> = (0..n * k).map(|_| rng.range(-1.0, 1.0)).collect();
     let c: Vec<f64> = (0..k * m)
-        .map(|_| if rng.uniform() < 0.3 { rng.normal() * 0.4 } else { 0.0 })
+        .map(|_| {
+            if rng.uniform() < 0.3 {
+                rng.normal() * 0.4
+            } else {
+                0.0
+            }
+        })
         .collect();
     let lam: Vec<f64> = (0..k * m).map(|_| rng.range(0.0, 2.0)).collect();
     let parts = objective_residual_free(&x, n, m, &w, &c, &lam, k);
@@ -370,7 +395,11 @@ fn residual_free_objective_equals_explicit() {
         "fit {} vs {fit}, penalty {} vs {pen}",
         parts.fit, parts.penalty
     );
-    assert!((parts.fit - fit).abs() < 1e-12 * x_sq, "fit {} vs {fit}", parts.fit);
+    assert!(
+        (parts.fit - fit).abs() < 1e-12 * x_sq,
+        "fit {} vs {fit}",
+        parts.fit
+    );
     assert!((parts.penalty - pen).abs() < 1e-12 * pen);
     assert!((parts.total - (fit + pen)).abs() < 1e-12 * x_sq);
 }
@@ -419,7 +448,9 @@ fn planted(n: usize, noise: f64, seed: u64) -> Planted {
         let mut s = vec![false; m];
         for e in 0..m {
             let p = mids[e];
-            let ang = (p[0] * d[0] + p[1] * d[1] + p[2] * d[2]).clamp(-1.0, 1.0).acos();
+            let ang = (p[0] * d[0] + p[1] * d[1] + p[2] * d[2])
+                .clamp(-1.0, 1.0)
+                .acos();
             let t = ang / radius;
             if t < 1.0 {
                 // Signed profile: positive core, negative ring.
@@ -532,7 +563,13 @@ fn planted_components_are_recovered() {
         );
     }
     let rows: Vec<Vec<f64>> = (0..8)
-        .map(|k| dec.components.dense_row(k).iter().map(|&v| v as f64).collect())
+        .map(|k| {
+            dec.components
+                .dense_row(k)
+                .iter()
+                .map(|&v| v as f64)
+                .collect()
+        })
         .collect();
     let mut used = Vec::new();
     for (j, c) in p.comps.iter().enumerate() {
@@ -568,7 +605,10 @@ fn planted_components_are_recovered() {
     // W is normalized to [−1, 1].
     for k in 0..8 {
         let mx = (0..p.n).fold(0.0f32, |a, i| a.max(dec.weights[(i, k)].abs()));
-        assert!(mx == 0.0 || (mx - 1.0).abs() < 1e-6, "max |W[:,{k}]| = {mx}");
+        assert!(
+            mx == 0.0 || (mx - 1.0).abs() < 1e-6,
+            "max |W[:,{k}]| = {mx}"
+        );
     }
 
     // encode(): a sample synthesized from the components gives back its β.
@@ -585,7 +625,10 @@ fn planted_components_are_recovered() {
     let x: Vec<f32> = dec.reconstruct(&beta).iter().map(|&v| v as f32).collect();
     let enc = dec.encoder(0.0).unwrap();
     let b = enc.encode(&x).unwrap();
-    let err = b.iter().zip(&beta).fold(0.0f64, |a, (p, q)| a.max((p - q).abs()));
+    let err = b
+        .iter()
+        .zip(&beta)
+        .fold(0.0f64, |a, (p, q)| a.max((p - q).abs()));
     eprintln!("encode: max |β − β̂| = {err:.2e}");
     assert!(err < 1e-3, "encode error {err}");
     // A training sample is encoded close to its W row on the planted components.
@@ -617,7 +660,10 @@ fn objective_is_monotone_with_fixed_supports() {
     }
     let first = dec.history.first().unwrap().objective_start;
     let last = dec.history.last().unwrap().objective;
-    eprintln!("objective {first:.6e} → {last:.6e} in {} iterations", dec.history.len());
+    eprintln!(
+        "objective {first:.6e} → {last:.6e} in {} iterations",
+        dec.history.len()
+    );
     assert!(last < first);
     assert_eq!(dec.history.len(), 25);
 }
