@@ -10,7 +10,9 @@
 pub mod error;
 pub mod geodesic;
 pub mod mlp;
+pub mod model;
 pub mod pca;
 pub mod splocs;
+pub mod train;
 
 pub use error::{ModelError, Result};

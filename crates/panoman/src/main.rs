@@ -4,6 +4,7 @@
 //! one line `error: <file>: <what is wrong>`. Outputs are written atomically.
 
 mod commands;
+mod plot;
 mod render;
 mod util;
 
@@ -35,8 +36,16 @@ enum Command {
     Generate(commands::generate::GenerateArgs),
     /// Render meshes side by side (with keypoints) to a PNG (front, side or back view).
     Render(commands::render::RenderArgs),
+    /// Train a PanoMan model (shape PCA, sparse localized RL/RA components, MLPs) on a dataset.
+    Train(commands::train::TrainArgs),
+    /// Pose a model: parameters (α, β) → mesh.
+    Pose(commands::pose::PoseArgs),
+    /// Encode a registered mesh into model parameters (α, β): the inverse of `pose`.
+    Encode(commands::encode::EncodeArgs),
     /// Synthesize the training data H (rest, body poses, expressions, hand gestures).
     Synth(commands::synth::SynthArgs),
+    /// TC-127 keypoints (body, face, hands) of a mesh in template topology, as JSON.
+    Keypoints(commands::keypoints::KeypointsArgs),
 }
 
 fn main() -> ExitCode {
@@ -54,9 +63,13 @@ fn main() -> ExitCode {
         Command::Roundtrip(a) => commands::roundtrip::run(a),
         Command::Bench(a) => commands::bench::run(a),
         Command::Demo(a) => commands::demo::run(a),
+        Command::Train(a) => commands::train::run(a),
+        Command::Pose(a) => commands::pose::run(a),
+        Command::Encode(a) => commands::encode::run(a),
         Command::Generate(a) => commands::generate::run(a),
         Command::Render(a) => commands::render::run(a),
         Command::Synth(a) => commands::synth::run(a),
+        Command::Keypoints(a) => commands::keypoints::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

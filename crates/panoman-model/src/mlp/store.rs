@@ -275,8 +275,9 @@ impl TensorStore {
             .map(|(k, v)| (k.clone(), v.clone()))
             .collect();
         let meta = (!meta.is_empty()).then_some(meta);
-        safetensors::serialize(views, meta)
-            .map_err(|e| ModelError::Invalid(format!("safetensors serialization failed: {e}")))
+        let bytes = safetensors::serialize(views, meta)
+            .map_err(|e| ModelError::Invalid(format!("safetensors serialization failed: {e}")))?;
+        canonical_header(bytes)
     }
 
     /// Parses safetensors bytes; `source` names the origin in later error messages.
@@ -580,4 +581,31 @@ impl PcaHead {
         let total = store.f64_tensor(&format!("{prefix}.total_variance"), &[1])?[0];
         Ok(PcaHead::from_parts(mean, weights, basis, var, total))
     }
+}
+
+/// Rewrites a safetensors file's JSON header with sorted keys (the crate serializes its
+/// metadata from a `HashMap`, whose order changes between processes), padded with spaces to a
+/// multiple of 8 bytes as the format requires. The data offsets are unchanged, so the tensors
+/// read back identically; equal stores now give byte-identical files.
+fn canonical_header(bytes: Vec<u8>) -> Result<Vec<u8>> {
+    let bad = |w: &str| ModelError::Invalid(format!("safetensors header: {w}"));
+    if bytes.len() < 8 {
+        return Err(bad("too short"));
+    }
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
+    let header = bytes
+        .get(8..8 + n)
+        .ok_or_else(|| bad("length beyond the data"))?;
+    // serde_json's default map is a BTreeMap: parsing and re-serializing sorts every object.
+    let value: serde_json::Value =
+        serde_json::from_slice(header).map_err(|e| bad(&e.to_string()))?;
+    let mut text = serde_json::to_vec(&value).map_err(|e| bad(&e.to_string()))?;
+    while text.len() % 8 != 0 {
+        text.push(b' ');
+    }
+    let mut out = Vec::with_capacity(8 + text.len() + bytes.len() - 8 - n);
+    out.extend_from_slice(&(text.len() as u64).to_le_bytes());
+    out.extend_from_slice(&text);
+    out.extend_from_slice(&bytes[8 + n..]);
+    Ok(out)
 }

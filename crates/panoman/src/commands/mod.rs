@@ -3,8 +3,12 @@
 pub mod assets;
 pub mod bench;
 pub mod demo;
+pub mod encode;
 pub mod generate;
+pub mod keypoints;
+pub mod pose;
 pub mod render;
 pub mod roundtrip;
 pub mod synth;
 pub mod template;
+pub mod train;

@@ -1,0 +1,895 @@
+//! Training the PanoMan model from a dataset H (paper §4.2–4.4; algorithms.md §3, §5).
+//!
+//! Stages (each timed in the report):
+//! 1. **shape**: PCA of the training identities' rest shapes (Eq. 2);
+//! 2. **rla**: RL/RA of every training row w.r.t. its identity's rest row;
+//! 3. **decompositions**: six sparse localized decompositions {RL, RA} × {body, face, hands},
+//!    body on the body rows H_B over the body edges, face on the expression rows H_F over the
+//!    face edges plus a margin, hands on the gesture rows H_H over both hands' edges plus a
+//!    margin; geodesics on the mean rest shape. Components are stored sorted by their energy
+//!    (so the first k are the best k);
+//! 4. **correction**: residuals of the truncated body decomposition on H_B, a weighted PCA head
+//!    (RL × 1, RA × ω_e with the dimensionless ω_e = ℓ_e/sqrt((A_fL + A_fR)/3) on V̄) and the MLP
+//!    `(β_LB, β_AB) → codes` (Eq. 4);
+//! 5. **motion**: the MLP `θ → (β_LB, β_AB)` on 6-D bone rotations with the Gram-metric loss.
+//!
+//! The held-out identities are never used for training; [`evaluate_representation`] measures
+//! the representation error on them.
+
+use crate::error::{ModelError, Result};
+use crate::geodesic::{EdgeGeodesics, PartGeodesics};
+use crate::mlp::{self, Loss, Mlp, OutputNorm, PcaHead, PcaHeadOptions};
+use crate::model::{
+    BLOCK_NAMES, Block, Correction, Evaluator, KeypointRows, Motion, PanoManModel, Params,
+};
+use crate::pca::ShapePca;
+use crate::splocs::{self, Decomposition, SparseRows, SplocsOptions};
+use faer::Mat;
+use panoman_human::dataset::Dataset;
+use panoman_human::regions::{Part, Regions};
+use panoman_mesh::align::rigid_align;
+use panoman_mesh::geom::{V3, norm, sub};
+use panoman_mesh::{RestGeometry, Rla, Topology};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::ops::ControlFlow;
+use std::time::Instant;
+
+/// Training configuration (see [`TrainConfig::preset`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct TrainConfig {
+    /// Preset name.
+    pub preset: String,
+    /// Shape components.
+    pub n_shape: usize,
+    /// Components per part: body, face, hands (same for RL and RA).
+    pub components: [usize; 3],
+    /// Ring margin added around the face and hand parts.
+    pub margin_rings: usize,
+    /// SPLOCS outer iterations cap.
+    pub splocs_outer_iters: usize,
+    /// SPLOCS sparsity weight λ.
+    pub splocs_lambda: f64,
+    /// Support bounds d_min (metres): body, face/hands.
+    pub d_min_body: [f64; 2],
+    /// Support bounds d_min (metres) of face and hands.
+    pub d_min_small: [f64; 2],
+    /// Correction MLP hidden width (0 = no correction MLP).
+    pub correction_hidden: usize,
+    /// Maximum rank of the correction's PCA head.
+    pub correction_rank: usize,
+    /// Correction MLP epochs.
+    pub correction_epochs: usize,
+    /// Motion MLP hidden widths (empty = no motion MLP).
+    pub motion_hidden: Vec<usize>,
+    /// Motion MLP epochs.
+    pub motion_epochs: usize,
+    /// Held-out rows per kind used by the evaluation (0 = all).
+    pub eval_rows_per_kind: usize,
+    /// Seed of every random choice.
+    pub seed: u64,
+}
+
+impl TrainConfig {
+    /// `small` (CI: minutes on the small topology) or `default` (the paper's sizes: 10 shape
+    /// components, 250/100/50 components, MLPs 1500 and 400–600 wide).
+    pub fn preset(name: &str) -> Result<TrainConfig> {
+        match name {
+            "small" => Ok(TrainConfig {
+                preset: "small".into(),
+                n_shape: 6,
+                components: [24, 12, 8],
+                margin_rings: 2,
+                splocs_outer_iters: 12,
+                splocs_lambda: 2.0,
+                d_min_body: [0.04, 0.30],
+                d_min_small: [0.005, 0.05],
+                correction_hidden: 128,
+                correction_rank: 16,
+                correction_epochs: 150,
+                motion_hidden: vec![64, 64],
+                motion_epochs: 150,
+                eval_rows_per_kind: 0,
+                seed: 0,
+            }),
+            "default" => Ok(TrainConfig {
+                preset: "default".into(),
+                n_shape: 10,
+                components: [250, 100, 50],
+                margin_rings: 2,
+                splocs_outer_iters: 30,
+                splocs_lambda: 2.0,
+                d_min_body: [0.04, 0.30],
+                d_min_small: [0.005, 0.05],
+                correction_hidden: 1500,
+                correction_rank: 192,
+                correction_epochs: 200,
+                motion_hidden: vec![400, 600],
+                motion_epochs: 300,
+                eval_rows_per_kind: 100,
+                seed: 0,
+            }),
+            other => Err(ModelError::Invalid(format!(
+                "unknown preset '{other}' (known: small, default)"
+            ))),
+        }
+    }
+}
+
+/// What training needs besides the dataset: the template topology and its regions.
+pub struct TrainInputs<'a> {
+    /// The dataset (validated).
+    pub dataset: &'a Dataset,
+    /// Topology name ("full" or "small").
+    pub topology_name: String,
+    /// Template triangles (their hash must equal the dataset's).
+    pub faces: Vec<[u32; 3]>,
+    /// Part labels of the template.
+    pub regions: &'a Regions,
+    /// Keypoint definitions to store in the model.
+    pub keypoints: KeypointRows,
+}
+
+/// One point of the paper's Fig. 7: a part truncated to its first `k` components.
+#[derive(Clone, Debug, Serialize)]
+pub struct CurvePoint {
+    /// "body", "face" or "hands".
+    pub part: String,
+    /// Components kept (RL and RA each).
+    pub k: usize,
+    /// RMS of the RL residual on the part's columns (held-out rows).
+    pub rl_rms: f64,
+    /// RMS of the RA residual on the part's columns (radians).
+    pub ra_rms: f64,
+    /// Mean per-vertex error of the rebuilt mesh on the part's region (mm).
+    pub mesh_mean_mm: f64,
+    /// Max per-vertex error (mm).
+    pub mesh_max_mm: f64,
+}
+
+/// Representation error of one part on held-out rows.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct PartError {
+    /// Rows evaluated.
+    pub rows: usize,
+    /// Mean per-vertex error on the region (mm), model rest shape B_S(α), no correction.
+    pub mean_mm: f64,
+    /// Max per-vertex error (mm), as above.
+    pub max_mm: f64,
+    /// Mean (mm) with the correction MLP.
+    pub mean_mm_corrected: f64,
+    /// Max (mm) with the correction MLP.
+    pub max_mm_corrected: f64,
+    /// Mean (mm) with the identity's exact rest shape instead of B_S(α) (isolates the motion
+    /// model from the shape PCA), no correction.
+    pub mean_mm_exact_rest: f64,
+    /// Max (mm), exact rest shape.
+    pub max_mm_exact_rest: f64,
+}
+
+/// Result of training.
+pub struct TrainOutput {
+    /// The model (its `report` holds the deterministic parts of the report).
+    pub model: PanoManModel,
+    /// Full report (with timings).
+    pub report: serde_json::Value,
+    /// Fig. 7 points.
+    pub curves: Vec<CurvePoint>,
+}
+
+struct RowRla {
+    rl: Vec<f32>,
+    ra: Vec<f32>,
+}
+
+fn to_v3(p: &[[f32; 3]]) -> Vec<V3> {
+    p.iter()
+        .map(|x| [x[0] as f64, x[1] as f64, x[2] as f64])
+        .collect()
+}
+
+/// Reads row `r`'s vertices (f64).
+fn row_vertices(ds: &Dataset, r: usize) -> Result<Vec<V3>> {
+    Ok(to_v3(
+        &ds.vertices(r)
+            .map_err(|e| ModelError::Invalid(e.to_string()))?,
+    ))
+}
+
+/// Columns of the three parts: body = edges labelled body; face = face mask with margin;
+/// hands = left ∪ right hand masks with margin.
+pub fn part_columns(regions: &Regions, margin: usize) -> [Vec<u32>; 3] {
+    let body: Vec<u32> = regions
+        .edge_part
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| **p == Part::Body)
+        .map(|(e, _)| e as u32)
+        .collect();
+    let face = regions.mask(Part::Face, margin).edge_ids();
+    let l = regions.mask(Part::LeftHand, margin).edges;
+    let r = regions.mask(Part::RightHand, margin).edges;
+    let hands: Vec<u32> = (0..l.len())
+        .filter(|&e| l[e] || r[e])
+        .map(|e| e as u32)
+        .collect();
+    [body, face, hands]
+}
+
+/// Trains a model (see the module docs). `progress(stage)` is called at each stage start.
+pub fn train(
+    inputs: &TrainInputs<'_>,
+    cfg: &TrainConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<TrainOutput> {
+    let ds = inputs.dataset;
+    let t_all = Instant::now();
+    let topo = Topology::build(ds.n_vertices, &inputs.faces)?;
+    if topo.hash_hex() != ds.topology_hash {
+        return Err(ModelError::Invalid(format!(
+            "the dataset's topology hash {} differs from the {} template's {}",
+            ds.topology_hash,
+            inputs.topology_name,
+            topo.hash_hex()
+        )));
+    }
+    let is_train: Vec<bool> = {
+        let n_id = ds
+            .identity
+            .iter()
+            .copied()
+            .max()
+            .map_or(0, |m| m as usize + 1);
+        let mut v = vec![false; n_id];
+        for &i in &ds.train {
+            v[i as usize] = true;
+        }
+        v
+    };
+    let rows_of = |kind: u8, train: bool| -> Vec<usize> {
+        (0..ds.n_rows)
+            .filter(|&r| ds.kind[r] == kind && is_train[ds.identity[r] as usize] == train)
+            .collect()
+    };
+    let mut timings = serde_json::Map::new();
+
+    // 1. Shape PCA.
+    progress("shape PCA");
+    let t = Instant::now();
+    let rest_rows = rows_of(0, true);
+    if rest_rows.len() < 2 {
+        return Err(ModelError::Invalid(
+            "need at least 2 training identities".into(),
+        ));
+    }
+    let nv = ds.n_vertices;
+    let rest_mat = {
+        let rests: Vec<Vec<V3>> = rest_rows
+            .iter()
+            .map(|&r| row_vertices(ds, r))
+            .collect::<Result<_>>()?;
+        Mat::<f64>::from_fn(rests.len(), 3 * nv, |i, j| rests[i][j / 3][j % 3])
+    };
+    let shape = ShapePca::fit(rest_mat.as_ref(), cfg.n_shape.min(rest_rows.len() - 1))?;
+    timings.insert("shape_s".into(), t.elapsed().as_secs_f64().into());
+    let vbar: Vec<V3> = shape
+        .mean
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+
+    // 2. RLA of the training rows, per kind.
+    progress("RL/RA of the training rows");
+    let t = Instant::now();
+    let kinds_rows: [Vec<usize>; 3] = [rows_of(1, true), rows_of(2, true), rows_of(3, true)];
+    let rla_of = |rows: &[usize]| -> Result<Vec<RowRla>> {
+        rows.par_iter()
+            .map(|&r| {
+                let rest = row_vertices(ds, ds.rest_of[r] as usize)?;
+                let mesh = row_vertices(ds, r)?;
+                let rg = RestGeometry::new(&topo, &rest)?;
+                let x = Rla::compute(&topo, &rg, &mesh)?;
+                Ok(RowRla {
+                    rl: x.rl.iter().map(|&v| v as f32).collect(),
+                    ra: x.ra.iter().map(|&v| v as f32).collect(),
+                })
+            })
+            .collect()
+    };
+    let rlas: Vec<Vec<RowRla>> = kinds_rows
+        .iter()
+        .map(|rows| rla_of(rows))
+        .collect::<Result<_>>()?;
+    timings.insert("rla_s".into(), t.elapsed().as_secs_f64().into());
+
+    // 3. Decompositions.
+    let cols = part_columns(inputs.regions, cfg.margin_rings);
+    let geo = EdgeGeodesics::new(&topo, &vbar)?;
+    let mut decs: Vec<Option<Decomposition>> = vec![None, None, None, None, None, None];
+    let mut dec_report = serde_json::Map::new();
+    for part in 0..3 {
+        for q in 0..2 {
+            let b = q * 3 + part;
+            let name = BLOCK_NAMES[b];
+            progress(&format!("decomposition {name}"));
+            let t = Instant::now();
+            let rows = &rlas[part];
+            let c = &cols[part];
+            if rows.len() < 2 || c.is_empty() {
+                return Err(ModelError::Invalid(format!(
+                    "block {name}: {} training rows and {} columns; need ≥ 2 of each",
+                    rows.len(),
+                    c.len()
+                )));
+            }
+            let n = rows.len();
+            let mut data = Vec::with_capacity(n * c.len());
+            for &e in c {
+                for row in rows {
+                    data.push(if q == 0 {
+                        row.rl[e as usize]
+                    } else {
+                        row.ra[e as usize]
+                    });
+                }
+            }
+            let dists = PartGeodesics::new(&geo, c.clone())?;
+            let bounds = if part == 0 {
+                cfg.d_min_body
+            } else {
+                cfg.d_min_small
+            };
+            let mut opts =
+                SplocsOptions::new(cfg.components[part].min(n.saturating_sub(1)).max(1), bounds);
+            opts.max_outer_iters = cfg.splocs_outer_iters;
+            opts.lambda = cfg.splocs_lambda;
+            let dec = splocs::fit_col_major(data, n, &dists, &opts, |_| {})?;
+            dec_report.insert(
+                name.into(),
+                serde_json::json!({
+                    "rows": n, "columns": c.len(), "components": dec.n_components(),
+                    "explained_variance": dec.explained_variance,
+                    "nnz": dec.components.nnz(),
+                    "median_support_fraction": median_support(&dec.components),
+                    "outer_iterations": dec.history.len(),
+                }),
+            );
+            timings.insert(format!("splocs_{name}_s"), t.elapsed().as_secs_f64().into());
+            decs[b] = Some(dec);
+        }
+    }
+    let decs: Vec<Decomposition> = decs
+        .into_iter()
+        .map(|d| d.expect("all blocks fitted"))
+        .collect();
+
+    // Blocks, components sorted by energy (descending); W columns permuted alike.
+    let mut orders = Vec::with_capacity(6);
+    let mut blocks = Vec::with_capacity(6);
+    for (b, dec) in decs.iter().enumerate() {
+        let k = dec.n_components();
+        let mut order: Vec<usize> = (0..k).collect();
+        order.sort_by(|&a, &c| {
+            dec.component_energy[c]
+                .total_cmp(&dec.component_energy[a])
+                .then(a.cmp(&c))
+        });
+        let mut row_ptr = vec![0usize];
+        let mut col_idx = Vec::new();
+        let mut values = Vec::new();
+        let mut beta_range = Vec::with_capacity(k);
+        for &kk in &order {
+            let (ci, vi) = dec.components.row(kk);
+            col_idx.extend_from_slice(ci);
+            values.extend_from_slice(vi);
+            row_ptr.push(col_idx.len());
+            let w = dec.weights.col(kk);
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for i in 0..w.nrows() {
+                lo = lo.min(w[i]);
+                hi = hi.max(w[i]);
+            }
+            let pad = 0.1 * (hi - lo).max(1e-6);
+            beta_range.push([lo - pad, hi + pad]);
+        }
+        blocks.push(Block {
+            name: BLOCK_NAMES[b].into(),
+            columns: cols[b % 3].clone(),
+            mean: dec.mean.clone(),
+            components: SparseRows {
+                n_cols: dec.n_columns(),
+                row_ptr,
+                col_idx,
+                values,
+            },
+            beta_range,
+        });
+        orders.push(order);
+    }
+    // Training β of the body rows (sorted order): [β_LB | β_AB].
+    let n_body = rlas[0].len();
+    let (kl, ka) = (blocks[0].n_components(), blocks[3].n_components());
+    let beta_b = Mat::<f32>::from_fn(n_body, kl + ka, |i, j| {
+        if j < kl {
+            decs[0].weights[(i, orders[0][j])]
+        } else {
+            decs[3].weights[(i, orders[3][j - kl])]
+        }
+    });
+
+    // Validation split of the training identities (for early stopping): every 7th identity.
+    let body_rows = &kinds_rows[0];
+    let val_mask: Vec<bool> = body_rows.iter().map(|&r| ds.identity[r] % 7 == 3).collect();
+
+    // 4. Correction MLP.
+    let correction = if cfg.correction_hidden > 0 {
+        progress("correction MLP");
+        let t = Instant::now();
+        let (ml, ma) = (blocks[0].columns.len(), blocks[3].columns.len());
+        let mut y = Mat::<f32>::zeros(n_body, ml + ma);
+        for i in 0..n_body {
+            let bl: Vec<f64> = (0..kl).map(|j| beta_b[(i, j)] as f64).collect();
+            let ba: Vec<f64> = (0..ka).map(|j| beta_b[(i, kl + j)] as f64).collect();
+            let rl = block_reconstruct(&blocks[0], &bl);
+            let ra = block_reconstruct(&blocks[3], &ba);
+            for (j, &e) in blocks[0].columns.iter().enumerate() {
+                y[(i, j)] = rlas[0][i].rl[e as usize] - rl[j] as f32;
+            }
+            for (j, &e) in blocks[3].columns.iter().enumerate() {
+                y[(i, ml + j)] = rlas[0][i].ra[e as usize] - ra[j] as f32;
+            }
+        }
+        let omega = bending_weights(&topo, &vbar);
+        let mut w = vec![1.0f32; ml + ma];
+        for (j, &e) in blocks[3].columns.iter().enumerate() {
+            w[ml + j] = omega[e as usize] as f32;
+        }
+        let hopts = PcaHeadOptions {
+            max_rank: cfg.correction_rank.min(n_body.saturating_sub(1)).max(1),
+            min_rank: 1,
+            target_explained: 0.99,
+            seed: cfg.seed,
+            ..PcaHeadOptions::default()
+        };
+        let fit = PcaHead::fit(y.as_ref(), Some(&w), &hopts)?;
+        let codes = fit.codes;
+        let (xtr, ytr, xva, yva) = split_rows(&beta_b, &codes, &val_mask);
+        let mut net = Mlp::new(
+            &[kl + ka, cfg.correction_hidden, fit.head.rank()],
+            cfg.seed ^ 0xC0,
+        )?;
+        let tcfg = mlp::TrainConfig {
+            epochs: cfg.correction_epochs,
+            seed: cfg.seed ^ 0xC1,
+            output_norm: OutputNorm::Global,
+            ..mlp::TrainConfig::default()
+        };
+        let train_set = mlp::Dataset::new(xtr.as_ref(), ytr.as_ref())?;
+        let val_set = if xva.nrows() > 0 {
+            Some(mlp::Dataset::new(xva.as_ref(), yva.as_ref())?)
+        } else {
+            None
+        };
+        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |_| {
+            ControlFlow::Continue(())
+        })?;
+        timings.insert("correction_s".into(), t.elapsed().as_secs_f64().into());
+        dec_report.insert(
+            "correction".into(),
+            serde_json::json!({"head_rank": fit.head.rank(), "head_explained": fit.explained_ratio,
+                               "epochs_run": rep.history.len(), "best_val_loss": rep.best_val_loss,
+                               "final_train_loss": rep.history.last().map(|h| h.train_loss)}),
+        );
+        Some(Correction {
+            mlp: net,
+            head: fit.head,
+        })
+    } else {
+        None
+    };
+
+    // 5. Motion MLP θ → β_B.
+    let motion = if !cfg.motion_hidden.is_empty() {
+        progress("motion MLP θ→β");
+        let t = Instant::now();
+        let (bones, index): (Vec<String>, Vec<u32>) = ds
+            .theta_bones
+            .iter()
+            .enumerate()
+            .filter(|(_, n)| is_body_bone(n))
+            .map(|(i, n)| (n.clone(), i as u32))
+            .unzip();
+        let p = ds.theta.len() / ds.n_rows.max(1);
+        let x = Mat::<f32>::from_fn(n_body, 6 * index.len(), |i, j| {
+            let r = body_rows[i];
+            let th = &ds.theta[r * p..(r + 1) * p];
+            let b = index[j / 6] as usize;
+            let rot = euler_xyz(th[3 * b] as f64, th[3 * b + 1] as f64, th[3 * b + 2] as f64);
+            // 6-D representation: the first two columns of R.
+            let (col, row) = ((j % 6) / 3, (j % 6) % 3);
+            rot[row][col] as f32
+        });
+        let mut gram = Mat::<f64>::zeros(kl + ka, kl + ka);
+        let gl = blocks[0].components.gram();
+        let ga = blocks[3].components.gram();
+        for a in 0..kl {
+            for c in 0..kl {
+                gram[(a, c)] = gl[a * kl + c];
+            }
+        }
+        for a in 0..ka {
+            for c in 0..ka {
+                gram[(kl + a, kl + c)] = ga[a * ka + c];
+            }
+        }
+        let tr: f64 = (0..kl + ka).map(|i| gram[(i, i)]).sum::<f64>() / (kl + ka) as f64;
+        for i in 0..kl + ka {
+            gram[(i, i)] += 1e-3 * tr.max(1e-12);
+        }
+        let mut sizes = vec![6 * index.len()];
+        sizes.extend_from_slice(&cfg.motion_hidden);
+        sizes.push(kl + ka);
+        let mut net = Mlp::new(&sizes, cfg.seed ^ 0x70)?;
+        let tcfg = mlp::TrainConfig {
+            epochs: cfg.motion_epochs,
+            seed: cfg.seed ^ 0x71,
+            loss: Loss::Metric(gram),
+            ..mlp::TrainConfig::default()
+        };
+        let (xtr, ytr, xva, yva) = split_rows(&x, &beta_b, &val_mask);
+        let train_set = mlp::Dataset::new(xtr.as_ref(), ytr.as_ref())?;
+        let val_set = if xva.nrows() > 0 {
+            Some(mlp::Dataset::new(xva.as_ref(), yva.as_ref())?)
+        } else {
+            None
+        };
+        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |_| {
+            ControlFlow::Continue(())
+        })?;
+        timings.insert("motion_s".into(), t.elapsed().as_secs_f64().into());
+        dec_report.insert(
+            "motion".into(),
+            serde_json::json!({"inputs": 6 * index.len(), "epochs_run": rep.history.len(),
+                               "best_val_loss": rep.best_val_loss}),
+        );
+        Some(Motion {
+            mlp: net,
+            theta_bones: bones,
+            theta_index: index,
+        })
+    } else {
+        None
+    };
+
+    let explained_shape: f64 = shape.explained_variance_ratio.iter().sum();
+    let config_json = serde_json::to_value(cfg).expect("config serializes");
+    let det_report = serde_json::json!({
+        "train_identities": ds.train.len(),
+        "held_out_identities": ds.held_out.len(),
+        "rows": {"body": kinds_rows[0].len(), "face": kinds_rows[1].len(), "hands": kinds_rows[2].len()},
+        "shape": {"components": shape.n_components(), "explained_variance": explained_shape,
+                  "explained_per_component": shape.explained_variance_ratio},
+        "blocks": dec_report,
+    });
+    let model = PanoManModel {
+        topology_name: inputs.topology_name.clone(),
+        topology_hash: topo.hash_hex(),
+        faces: inputs.faces.clone(),
+        n_vertices: nv,
+        shape,
+        blocks,
+        correction,
+        motion,
+        edge_part: inputs
+            .regions
+            .edge_part
+            .iter()
+            .map(|p| p.index() as u8)
+            .collect(),
+        keypoints: inputs.keypoints.clone(),
+        config: config_json,
+        report: det_report.clone(),
+    };
+
+    // Evaluation on held-out identities.
+    progress("representation error (held-out identities)");
+    let t = Instant::now();
+    let eval = evaluate_representation(&model, ds, inputs.regions, cfg.eval_rows_per_kind)?;
+    timings.insert("evaluation_s".into(), t.elapsed().as_secs_f64().into());
+    progress("component curves (Fig. 7)");
+    let t = Instant::now();
+    let curve_rows = if cfg.eval_rows_per_kind == 0 {
+        0
+    } else {
+        cfg.eval_rows_per_kind.min(40)
+    };
+    let curves = component_curves(&model, ds, inputs.regions, curve_rows)?;
+    timings.insert("curves_s".into(), t.elapsed().as_secs_f64().into());
+    timings.insert("total_s".into(), t_all.elapsed().as_secs_f64().into());
+    let report = serde_json::json!({
+        "preset": cfg.preset,
+        "model": det_report,
+        "representation_error": eval,
+        "timings": timings,
+    });
+    Ok(TrainOutput {
+        model,
+        report,
+        curves,
+    })
+}
+
+fn is_body_bone(name: &str) -> bool {
+    !(name.starts_with("finger")
+        || name.starts_with("metacarpal")
+        || name == "jaw"
+        || name.starts_with("eye"))
+}
+
+/// `R = Rz(z)·Ry(y)·Rx(x)` (Blender "XYZ"), angles in radians; row-major.
+pub fn euler_xyz(x: f64, y: f64, z: f64) -> [[f64; 3]; 3] {
+    let (sx, cx) = x.sin_cos();
+    let (sy, cy) = y.sin_cos();
+    let (sz, cz) = z.sin_cos();
+    [
+        [cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],
+        [sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx],
+        [-sy, cy * sx, cy * cx],
+    ]
+}
+
+fn split_rows(
+    x: &Mat<f32>,
+    y: &Mat<f32>,
+    val: &[bool],
+) -> (Mat<f32>, Mat<f32>, Mat<f32>, Mat<f32>) {
+    let tr: Vec<usize> = (0..x.nrows()).filter(|&i| !val[i]).collect();
+    let va: Vec<usize> = (0..x.nrows()).filter(|&i| val[i]).collect();
+    let pick = |m: &Mat<f32>, rows: &[usize]| {
+        Mat::<f32>::from_fn(rows.len(), m.ncols(), |i, j| m[(rows[i], j)])
+    };
+    (pick(x, &tr), pick(y, &tr), pick(x, &va), pick(y, &va))
+}
+
+fn block_reconstruct(b: &Block, beta: &[f64]) -> Vec<f64> {
+    let mut out: Vec<f64> = b.mean.iter().map(|&m| m as f64).collect();
+    for (k, &bk) in beta.iter().enumerate() {
+        if bk == 0.0 {
+            continue;
+        }
+        let (cols, vals) = b.components.row(k);
+        for (&j, &v) in cols.iter().zip(vals) {
+            out[j as usize] += bk * v as f64;
+        }
+    }
+    out
+}
+
+/// Median over components of the fraction of the block's columns with a non-zero weight.
+fn median_support(c: &SparseRows) -> f64 {
+    let mut f: Vec<f64> = (0..c.n_rows())
+        .map(|k| c.row(k).0.len() as f64 / c.n_cols.max(1) as f64)
+        .filter(|&x| x > 0.0)
+        .collect();
+    if f.is_empty() {
+        return 0.0;
+    }
+    f.sort_by(f64::total_cmp);
+    f[f.len() / 2]
+}
+
+/// The dimensionless bending weight `ω_e = ℓ_e / sqrt((A_fL + A_fR)/3)` on `positions`
+/// (algorithms.md §4.1, Fröhlich–Botsch); 0 on boundary edges.
+pub fn bending_weights(topo: &Topology, positions: &[V3]) -> Vec<f64> {
+    let area = |f: u32| {
+        let [a, b, c] = topo.faces[f as usize];
+        let (pa, pb, pc) = (
+            positions[a as usize],
+            positions[b as usize],
+            positions[c as usize],
+        );
+        0.5 * norm(panoman_mesh::geom::cross(sub(pb, pa), sub(pc, pa)))
+    };
+    (0..topo.n_edges())
+        .map(|e| {
+            let [fl, fr] = topo.edge_faces[e];
+            if !topo.is_interior(e) {
+                return 0.0;
+            }
+            let [i, j] = topo.edges[e];
+            let l = norm(sub(positions[j as usize], positions[i as usize]));
+            l / ((area(fl) + area(fr)) / 3.0).sqrt()
+        })
+        .collect()
+}
+
+/// Vertices of the region a row kind is evaluated on: all (body poses), the face (expressions),
+/// both hands (gestures).
+fn region_vertices(regions: &Regions, kind: u8) -> Vec<u32> {
+    match kind {
+        2 => regions.vertices_of(Part::Face),
+        3 => {
+            let mut v = regions.vertices_of(Part::LeftHand);
+            v.extend(regions.vertices_of(Part::RightHand));
+            v.sort_unstable();
+            v.dedup();
+            v
+        }
+        _ => (0..regions.n_vertices() as u32).collect(),
+    }
+}
+
+fn held_out_rows(ds: &Dataset, kind: u8, limit: usize) -> Vec<usize> {
+    let held: std::collections::BTreeSet<u32> = ds.held_out.iter().copied().collect();
+    let rows: Vec<usize> = (0..ds.n_rows)
+        .filter(|&r| ds.kind[r] == kind && held.contains(&ds.identity[r]))
+        .collect();
+    if limit == 0 || rows.len() <= limit {
+        rows
+    } else {
+        // Evenly spaced subset (deterministic).
+        (0..limit).map(|i| rows[i * rows.len() / limit]).collect()
+    }
+}
+
+/// Per-vertex errors (m) of `a` rigidly aligned onto `b`, on `region`.
+fn region_errors(a: &[V3], b: &[V3], region: &[u32]) -> (f64, f64) {
+    let m = rigid_align(a, b, None);
+    let mut sum = 0.0;
+    let mut max = 0.0f64;
+    for &v in region {
+        let d = norm(sub(m.apply(a[v as usize]), b[v as usize]));
+        sum += d;
+        max = max.max(d);
+    }
+    (sum / region.len().max(1) as f64, max)
+}
+
+/// Representation error on held-out identities (see [`PartError`]): each held-out row is
+/// encoded (α from its identity's rest shape, β by least squares on its RL/RA), rebuilt with g,
+/// rigidly aligned to the row and compared on its region.
+pub fn evaluate_representation(
+    model: &PanoManModel,
+    ds: &Dataset,
+    regions: &Regions,
+    rows_per_kind: usize,
+) -> Result<serde_json::Value> {
+    let mut ev = Evaluator::new(model)?;
+    let mut out = serde_json::Map::new();
+    for (kind, name) in [(1u8, "body"), (2, "face"), (3, "hands")] {
+        let rows = held_out_rows(ds, kind, rows_per_kind);
+        let region = region_vertices(regions, kind);
+        let mut pe = PartError {
+            rows: rows.len(),
+            ..Default::default()
+        };
+        for &r in &rows {
+            let mesh = row_vertices(ds, r)?;
+            let rest = row_vertices(ds, ds.rest_of[r] as usize)?;
+            let p = ev.encode(&mesh, Some(&rest), false)?;
+            let posed = ev.pose(&p, false)?;
+            let (m, x) = region_errors(&posed, &mesh, &region);
+            pe.mean_mm += m;
+            pe.max_mm = pe.max_mm.max(x);
+            // Exact rest: RLA of the model added to the identity's own rest shape.
+            let rla = model.rla(&p, false);
+            let exact = ev.reconstruct(&rest, &rla)?;
+            let (m, x) = region_errors(&exact, &mesh, &region);
+            pe.mean_mm_exact_rest += m;
+            pe.max_mm_exact_rest = pe.max_mm_exact_rest.max(x);
+            if model.correction.is_some() {
+                let pc = ev.encode(&mesh, Some(&rest), true)?;
+                let posed = ev.pose(&pc, true)?;
+                let (m, x) = region_errors(&posed, &mesh, &region);
+                pe.mean_mm_corrected += m;
+                pe.max_mm_corrected = pe.max_mm_corrected.max(x);
+            }
+        }
+        let n = rows.len().max(1) as f64;
+        pe.mean_mm *= 1e3 / n;
+        pe.max_mm *= 1e3;
+        pe.mean_mm_corrected *= 1e3 / n;
+        pe.max_mm_corrected *= 1e3;
+        pe.mean_mm_exact_rest *= 1e3 / n;
+        pe.max_mm_exact_rest *= 1e3;
+        out.insert(name.into(), serde_json::to_value(pe).expect("serializes"));
+    }
+    Ok(serde_json::Value::Object(out))
+}
+
+/// The paper's Fig. 7 on held-out rows: for each part and k, the part's RL and RA blocks are
+/// truncated to their first k components (sorted by energy), the rows are encoded and rebuilt,
+/// and the RLA residual and mesh error on the part's region are recorded.
+pub fn component_curves(
+    model: &PanoManModel,
+    ds: &Dataset,
+    regions: &Regions,
+    rows_per_kind: usize,
+) -> Result<Vec<CurvePoint>> {
+    let mut points = Vec::new();
+    for (part, kind, name) in [(0usize, 1u8, "body"), (1, 2, "face"), (2, 3, "hands")] {
+        let rows = held_out_rows(ds, kind, rows_per_kind);
+        if rows.is_empty() {
+            continue;
+        }
+        let region = region_vertices(regions, kind);
+        let kmax = model.blocks[part]
+            .n_components()
+            .max(model.blocks[part + 3].n_components());
+        let mut ks: Vec<usize> = [1usize, 2, 5, 10, 25, 50, 100, 150, 200, 250]
+            .iter()
+            .copied()
+            .filter(|&k| k < kmax)
+            .collect();
+        ks.push(kmax);
+        let data: Vec<(Vec<V3>, Vec<V3>)> = rows
+            .iter()
+            .map(|&r| {
+                Ok((
+                    row_vertices(ds, r)?,
+                    row_vertices(ds, ds.rest_of[r] as usize)?,
+                ))
+            })
+            .collect::<Result<_>>()?;
+        for k in ks {
+            let mut m = model.clone();
+            m.correction = None;
+            for b in [part, part + 3] {
+                truncate_block(&mut m.blocks[b], k);
+            }
+            let mut ev = Evaluator::new(&m)?;
+            let (mut rl2, mut ra2, mut nrl, mut nra) = (0.0, 0.0, 0usize, 0usize);
+            let (mut mean, mut max) = (0.0, 0.0f64);
+            for (mesh, rest) in &data {
+                let p = ev.encode(mesh, Some(rest), false)?;
+                let rg = RestGeometry::new(ev.topology(), &m.rest_shape(&p.alpha))?;
+                let x = Rla::compute(ev.topology(), &rg, mesh)?;
+                let fit = m.rla(&p, false);
+                for &e in &m.blocks[part].columns {
+                    rl2 += (x.rl[e as usize] - fit.rl[e as usize]).powi(2);
+                    nrl += 1;
+                }
+                for &e in &m.blocks[part + 3].columns {
+                    ra2 += (x.ra[e as usize] - fit.ra[e as usize]).powi(2);
+                    nra += 1;
+                }
+                let posed = ev.pose(&p, false)?;
+                let (mm, mx) = region_errors(&posed, mesh, &region);
+                mean += mm;
+                max = max.max(mx);
+            }
+            points.push(CurvePoint {
+                part: name.into(),
+                k,
+                rl_rms: (rl2 / nrl.max(1) as f64).sqrt(),
+                ra_rms: (ra2 / nra.max(1) as f64).sqrt(),
+                mesh_mean_mm: 1e3 * mean / data.len() as f64,
+                mesh_max_mm: 1e3 * max,
+            });
+        }
+    }
+    Ok(points)
+}
+
+/// Keeps the first `k` components of a block.
+fn truncate_block(b: &mut Block, k: usize) {
+    let k = k.min(b.n_components());
+    let end = b.components.row_ptr[k];
+    b.components.row_ptr.truncate(k + 1);
+    b.components.col_idx.truncate(end);
+    b.components.values.truncate(end);
+    b.beta_range.truncate(k);
+}
+
+/// Encodes `mesh` and rebuilds it (for tests and the CLI): returns the parameters and the
+/// rebuilt vertices.
+pub fn encode_and_rebuild(
+    ev: &mut Evaluator<'_>,
+    mesh: &[V3],
+    rest: Option<&[V3]>,
+    correction: bool,
+) -> Result<(Params, Vec<V3>)> {
+    let p = ev.encode(mesh, rest, correction)?;
+    let v = ev.pose(&p, correction)?;
+    Ok((p, v))
+}

@@ -1,0 +1,305 @@
+//! Acceptance tests of the model stage on the small preset: training through the CLI, posing,
+//! encoding, determinism of the model file, and bad input.
+
+use panoman_mesh::{TriMesh, io};
+use panoman_model::model::{Evaluator, PanoManModel, Params};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+fn panoman(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_panoman"))
+        .args(args)
+        .output()
+        .expect("run panoman")
+}
+
+fn ok(o: std::process::Output) -> String {
+    assert!(
+        o.status.success(),
+        "stdout {}\nstderr {}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8(o.stdout).unwrap()
+}
+
+fn one_line_error(o: &std::process::Output, needle: &str) {
+    assert!(!o.status.success(), "must fail");
+    let err = String::from_utf8_lossy(&o.stderr);
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "one line expected: {err:?}");
+    assert!(
+        lines[0].starts_with("error: ") && lines[0].contains(needle),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+/// A small dataset and a model trained on it, shared by the tests of this file.
+fn trained() -> &'static (PathBuf, PathBuf) {
+    static CELL: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    CELL.get_or_init(|| {
+        panoman_human::assets::ensure_default().expect("assets");
+        let d = std::env::temp_dir().join(format!("panoman-model-test-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        let data = d.join("H");
+        ok(panoman(&[
+            "synth",
+            "--preset",
+            "small",
+            "--seed",
+            "3",
+            "--out",
+            data.to_str().unwrap(),
+        ]));
+        let model = d.join("M.safetensors");
+        ok(panoman(&[
+            "train",
+            "--data",
+            data.to_str().unwrap(),
+            "--preset",
+            "small",
+            "--out",
+            model.to_str().unwrap(),
+        ]));
+        (data, model)
+    })
+}
+
+fn held_out_row(data: &Path) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, u8) {
+    let ds = panoman_human::dataset::Dataset::open(data).unwrap();
+    let r = (0..ds.n_rows)
+        .find(|&r| ds.kind[r] == 1 && ds.held_out.contains(&ds.identity[r]))
+        .expect("a held-out body row");
+    let v = |row: usize| -> Vec<[f64; 3]> {
+        ds.vertices(row)
+            .unwrap()
+            .iter()
+            .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+            .collect()
+    };
+    (v(r), v(ds.rest_of[r] as usize), ds.kind[r])
+}
+
+#[test]
+fn small_model_trains_poses_and_encodes() {
+    let (data, model_path) = trained();
+    let model = PanoManModel::load(model_path).unwrap();
+    assert_eq!(model.topology_name, "small");
+    assert_eq!(model.blocks.len(), 6);
+    assert!(model.correction.is_some() && model.motion.is_some());
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(model_path.with_extension("report.json")).unwrap(),
+    )
+    .unwrap();
+    for part in ["body", "face", "hands"] {
+        assert!(
+            report["representation_error"][part]["mean_mm"]
+                .as_f64()
+                .unwrap()
+                .is_finite()
+        );
+    }
+    assert!(model_path.with_extension("fig7.png").exists());
+    assert!(model_path.with_extension("fig7.csv").exists());
+
+    // Posing: zero parameters give the mean shape with the mean motion, finite and closed.
+    let mut ev = Evaluator::new(&model).unwrap();
+    let zero = ev.pose(&Params::default(), true).unwrap();
+    assert!(zero.iter().flatten().all(|c| c.is_finite()));
+    // Encoding a held-out mesh and posing it back reproduces it far better than the rest
+    // shape does (the motion is captured), and the encoding is consistent: encode(pose(p))
+    // recovers the RLA of pose(p).
+    let (mesh, rest, _) = held_out_row(data);
+    let p = ev.encode(&mesh, Some(&rest), false).unwrap();
+    let back = ev.pose(&p, false).unwrap();
+    let (_, err_model) = panoman_mesh::align::aligned_error(&back, &mesh);
+    let (_, err_rest) = panoman_mesh::align::aligned_error(&rest, &mesh);
+    assert!(
+        err_model < 0.5 * err_rest,
+        "model error {err_model} m must be well below the unposed error {err_rest} m"
+    );
+    // Parameters survive their JSON file exactly.
+    let pf = model_path.with_file_name("params-roundtrip.json");
+    p.write(&pf).unwrap();
+    assert_eq!(Params::read(&pf, &model).unwrap(), p);
+
+    // The CLI round trip: encode → params file → pose.
+    let dir = model_path.parent().unwrap();
+    let faces = model.faces.clone();
+    io::write_mesh(
+        &dir.join("x.obj"),
+        &TriMesh::new(mesh.clone(), faces.clone()),
+    )
+    .unwrap();
+    io::write_mesh(&dir.join("r.obj"), &TriMesh::new(rest.clone(), faces)).unwrap();
+    let m = model_path.to_str().unwrap();
+    ok(panoman(&[
+        "encode",
+        "--model",
+        m,
+        "--mesh",
+        dir.join("x.obj").to_str().unwrap(),
+        "--rest",
+        dir.join("r.obj").to_str().unwrap(),
+        "--out",
+        dir.join("p.json").to_str().unwrap(),
+    ]));
+    ok(panoman(&[
+        "pose",
+        "--model",
+        m,
+        "--params",
+        dir.join("p.json").to_str().unwrap(),
+        "--out",
+        dir.join("y.obj").to_str().unwrap(),
+    ]));
+    let y = io::read_mesh(&dir.join("y.obj")).unwrap();
+    assert_eq!(y.n_vertices(), model.n_vertices);
+}
+
+#[test]
+fn same_data_and_seed_give_a_byte_identical_model() {
+    let (data, model_path) = trained();
+    let again = model_path.with_file_name("M2.safetensors");
+    ok(panoman(&[
+        "train",
+        "--data",
+        data.to_str().unwrap(),
+        "--preset",
+        "small",
+        "--out",
+        again.to_str().unwrap(),
+    ]));
+    let a = std::fs::read(model_path).unwrap();
+    let b = std::fs::read(&again).unwrap();
+    assert!(a == b, "models differ ({} vs {} bytes)", a.len(), b.len());
+    // A different seed changes the model.
+    let other = model_path.with_file_name("M3.safetensors");
+    ok(panoman(&[
+        "train",
+        "--data",
+        data.to_str().unwrap(),
+        "--preset",
+        "small",
+        "--seed",
+        "9",
+        "--out",
+        other.to_str().unwrap(),
+    ]));
+    assert!(std::fs::read(&other).unwrap() != a);
+}
+
+#[test]
+fn bad_model_params_and_meshes_give_clear_errors() {
+    let (data, model_path) = trained();
+    let dir = model_path.parent().unwrap().join("bad");
+    std::fs::create_dir_all(&dir).unwrap();
+    let m = model_path.to_str().unwrap();
+    let out = dir.join("out.obj");
+    let out_s = out.to_str().unwrap();
+
+    // Truncated and corrupted model files.
+    let bytes = std::fs::read(model_path).unwrap();
+    let trunc = dir.join("truncated.safetensors");
+    std::fs::write(&trunc, &bytes[..bytes.len() / 3]).unwrap();
+    std::fs::write(dir.join("p0.json"), "{}").unwrap();
+    let p0 = dir.join("p0.json");
+    one_line_error(
+        &panoman(&[
+            "pose",
+            "--model",
+            trunc.to_str().unwrap(),
+            "--params",
+            p0.to_str().unwrap(),
+            "--out",
+            out_s,
+        ]),
+        "truncated.safetensors",
+    );
+    let mut corrupt = bytes.clone();
+    let n = corrupt.len();
+    for b in &mut corrupt[n - 64..] {
+        *b = 0xff; // NaNs in the last tensor's data
+    }
+    let cp = dir.join("corrupt.safetensors");
+    std::fs::write(&cp, &corrupt).unwrap();
+    let o = panoman(&[
+        "pose",
+        "--model",
+        cp.to_str().unwrap(),
+        "--params",
+        p0.to_str().unwrap(),
+        "--out",
+        out_s,
+    ]);
+    one_line_error(&o, "corrupt.safetensors");
+    assert!(!out.exists(), "nothing written on error");
+
+    // Mismatched β length, unknown block, unknown key, NaN.
+    let model = PanoManModel::load(model_path).unwrap();
+    let k = model.blocks[0].n_components();
+    for (name, text, needle) in [
+        (
+            "len.json",
+            format!("{{\"beta\": {{\"body_l\": {:?}}}}}", vec![0.0; k + 1]),
+            "body_l",
+        ),
+        (
+            "block.json",
+            "{\"beta\": {\"tail_l\": [1.0]}}".to_string(),
+            "tail_l",
+        ),
+        ("key.json", "{\"betas\": {}}".to_string(), "betas"),
+        ("alpha.json", "{\"alpha\": [1, 2]}".to_string(), "alpha"),
+    ] {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        let o = panoman(&[
+            "pose",
+            "--model",
+            m,
+            "--params",
+            p.to_str().unwrap(),
+            "--out",
+            out_s,
+        ]);
+        one_line_error(&o, name);
+        assert!(String::from_utf8_lossy(&o.stderr).contains(needle));
+    }
+
+    // Wrong topology: a full-template mesh given to a small model.
+    let full = dir.join("full.obj");
+    ok(panoman(&["template", "--out", full.to_str().unwrap()]));
+    let o = panoman(&[
+        "encode",
+        "--model",
+        m,
+        "--mesh",
+        full.to_str().unwrap(),
+        "--out",
+        dir.join("p.json").to_str().unwrap(),
+    ]);
+    one_line_error(&o, "full.obj");
+    assert!(String::from_utf8_lossy(&o.stderr).contains("topology"));
+
+    // A corrupted dataset.
+    let bad_data = dir.join("H");
+    std::fs::create_dir_all(&bad_data).unwrap();
+    std::fs::copy(data.join("dataset.json"), bad_data.join("dataset.json")).unwrap();
+    let t = std::fs::read(data.join("dataset.safetensors")).unwrap();
+    std::fs::write(bad_data.join("dataset.safetensors"), &t[..t.len() - 100]).unwrap();
+    let o = panoman(&[
+        "train",
+        "--data",
+        bad_data.to_str().unwrap(),
+        "--preset",
+        "small",
+        "--out",
+        dir.join("m.safetensors").to_str().unwrap(),
+    ]);
+    one_line_error(&o, "dataset.safetensors");
+    assert!(!dir.join("m.safetensors").exists());
+}
