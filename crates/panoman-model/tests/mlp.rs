@@ -478,6 +478,20 @@ fn pca_head_is_orthonormal_and_near_optimal() {
     // Seeded: same seed, same basis.
     let again = PcaHead::fit(y.as_ref(), Some(&w), &opts).unwrap();
     assert_eq!(again.head, fit.head);
+    // A row-major Y (samples contiguous) gives the same head up to f32 rounding.
+    let storage = y.transpose().to_owned(); // D × N column-major
+    let y_rm = storage.as_ref().transpose(); // N × D, row-major strides
+    assert_eq!(y_rm.col_stride(), 1);
+    let codes_rm = head.encode_batch(y_rm).unwrap();
+    let cmax = codes.col(0).iter().fold(0.0f32, |a, b| a.max(b.abs()));
+    for i in 0..n {
+        for k in 0..r {
+            assert!((codes_rm[(i, k)] - codes[(i, k)]).abs() <= 1e-5 * cmax);
+        }
+    }
+    let fit_rm = PcaHead::fit(y_rm, Some(&w), &opts).unwrap();
+    assert_eq!(fit_rm.head.rank(), r);
+    assert!((fit_rm.explained_ratio - fit.explained_ratio).abs() < 1e-6);
     // Exactly low-rank data is reconstructed.
     let y2 = low_rank_targets(&mut g, 80, 500, 6, 0.7, 0.0);
     let fit2 = PcaHead::fit(

@@ -171,8 +171,16 @@ fn to_f64(m: &Mat<f32>) -> Mat<f64> {
     Mat::from_fn(m.nrows(), m.ncols(), |i, j| f64::from(m[(i, j)]))
 }
 
+/// `dst_i = (src_i − μ_i)·w_i`.
+fn centre_scale(dst: &mut [f32], src: &[f32], mean: &[f32], w: &[f32]) {
+    for (((d, &v), &m), &wi) in dst.iter_mut().zip(src).zip(mean).zip(w) {
+        *d = (v - m) * wi;
+    }
+}
+
 /// Streams `Y` in fixed row blocks, handing `f(r0, Ỹ_block)` the centred and weighted block
-/// `(Y[r0.., :] − μ) ⊙ w` (f32, column-major). Block sizes depend only on the shape.
+/// `(Y[r0.., :] − μ) ⊙ w` (f32). Block sizes depend only on the shape; the copy is elementwise
+/// and parallel over fixed chunks, with contiguous fast paths for column- and row-major `Y`.
 fn for_each_block(
     y: MatRef<'_, f32>,
     mean: &[f32],
@@ -181,31 +189,49 @@ fn for_each_block(
 ) {
     let (n, d) = (y.nrows(), y.ncols());
     let nb = (BLOCK_ENTRIES / d.max(1)).clamp(16, 4096).min(n.max(1));
-    let mut buf = Mat::<f32>::zeros(nb, d);
+    let mut buf = vec![0.0f32; nb * d];
+    let row_major = y.row_stride() != 1 && y.col_stride() == 1;
     for r0 in (0..n).step_by(nb) {
         let rows = nb.min(n - r0);
-        // Parallel over fixed column chunks (elementwise: exact for any pool).
-        let chunk = 256;
-        let mut parts: Vec<(usize, MatMut<'_, f32>)> = Vec::with_capacity(d.div_ceil(chunk));
-        let mut rest = buf.as_mut().subrows_mut(0, rows);
-        let mut c0 = 0;
-        while c0 < d {
-            let len = chunk.min(d - c0);
-            let (head, tail) = rest.split_at_col_mut(len);
-            parts.push((c0, head));
-            rest = tail;
-            c0 += len;
+        let blk = &mut buf[..rows * d];
+        if row_major {
+            // Block stored d × rows column-major (one sample per column), viewed transposed.
+            blk.par_chunks_mut(d * 64)
+                .enumerate()
+                .for_each(|(c, part)| {
+                    for (ii, dst) in part.chunks_exact_mut(d).enumerate() {
+                        let row = y.row(r0 + c * 64 + ii).transpose();
+                        match row.try_as_col_major() {
+                            Some(src) => centre_scale(dst, src.as_slice(), mean, w),
+                            None => unreachable!("column stride 1"),
+                        }
+                    }
+                });
+            f(
+                r0,
+                MatRef::from_column_major_slice(blk, d, rows).transpose(),
+            );
+        } else {
+            // Block stored rows × d column-major.
+            blk.par_chunks_mut(rows * 256)
+                .enumerate()
+                .for_each(|(c, part)| {
+                    for (jj, dst) in part.chunks_exact_mut(rows).enumerate() {
+                        let j = c * 256 + jj;
+                        let col = y.col(j).subrows(r0, rows);
+                        if let Some(src) = col.try_as_col_major() {
+                            for (dv, &v) in dst.iter_mut().zip(src.as_slice()) {
+                                *dv = (v - mean[j]) * w[j];
+                            }
+                        } else {
+                            for (i, dv) in dst.iter_mut().enumerate() {
+                                *dv = (col[i] - mean[j]) * w[j];
+                            }
+                        }
+                    }
+                });
+            f(r0, MatRef::from_column_major_slice(blk, rows, d));
         }
-        parts.into_par_iter().for_each(|(c0, mut part)| {
-            for jj in 0..part.ncols() {
-                let j = c0 + jj;
-                let (m, wj) = (mean[j], w[j]);
-                for i in 0..rows {
-                    part[(i, jj)] = (y[(r0 + i, j)] - m) * wj;
-                }
-            }
-        });
-        f(r0, buf.as_ref().subrows(0, rows));
     }
 }
 
