@@ -16,6 +16,7 @@ pub mod template;
 pub use error::{HumanError, Result};
 pub mod dataset;
 pub mod generator;
+pub mod keypoints;
 pub mod outputs;
 pub mod params;
 pub mod phenotype;
