@@ -14,7 +14,8 @@
 //! component update (ADMM with a K×K Cholesky, §3.7), from a greedy initialization that never
 //! forms the residual (§3.5), with adaptive support radii (§3.4), a residual-free objective
 //! (§3.8) and re-seeding of dead components (§3.8). The model of a sample is
-//! `x ≈ X̄ + Σ_k β_k C_k` with the training β = rows of W (paper Eq. 3, X̄ is PanoMan's X̄_{YZ}).
+//! `x ≈ X̄ + Σ_k β_k C_k` with the training β = rows of W: the `X̄ + M·β` terms of the RLA model
+//! (PanoMan Eq. 2–8 as in algorithms.md §4.1; X̄ is PanoMan's X̄_{YZ}, M = Cᵀ).
 //!
 //! Numerics (algorithms.md §0, §6 items 11–12): X stays f32; every product with X is computed
 //! in f64 on column panels of X converted on the fly (faer GEMM, `Par::rayon(0)`), so Gram
@@ -663,9 +664,20 @@ impl SparseRows {
             .collect()
     }
 
-    /// `C·Cᵀ` (K×K, column-major, f64), accumulated column by column of C.
+    /// `C·Cᵀ` (K×K, column-major, f64): a dense f64 GEMM when more than 5 % of the entries
+    /// are stored, otherwise accumulated column by column of C (sparse outer products).
     pub fn gram(&self) -> Vec<f64> {
         let k = self.n_rows();
+        if self.nnz() as f64 > 0.05 * (k * self.n_cols) as f64 {
+            let mut dense = vec![0.0f64; k * self.n_cols];
+            for r in 0..k {
+                let (idx, val) = self.row(r);
+                for (&j, &v) in idx.iter().zip(val) {
+                    dense[j as usize * k + r] = v as f64;
+                }
+            }
+            return gram_of_rows(&dense, k, self.n_cols);
+        }
         // Column lists (CSC) of the CSR matrix.
         let mut cnt = vec![0usize; self.n_cols + 1];
         for &j in &self.col_idx {
@@ -730,7 +742,7 @@ pub struct IterationRecord {
 }
 
 /// Result of [`fit`]: the model `x ≈ mean + Σ_k β_k·components_k` of one part (§3.1, §3.2;
-/// PanoMan Eq. 3 with X̄ = `mean`, M_L or M_A = `components`ᵀ).
+/// the `X̄ + M·β` term of algorithms.md §4.1 with X̄ = `mean`, M_L or M_A = `components`ᵀ).
 #[derive(Clone, Debug)]
 pub struct Decomposition {
     /// X̄: the per-column mean of the training data (unscaled).
@@ -1406,6 +1418,10 @@ pub fn fit<D: ColumnDistances>(
 /// and re-seeding of dead components (§3.8), until the relative decrease is below `rel_tol`
 /// or `max_outer_iters`. Finally C ← C/s, stored sparse.
 ///
+/// Deterministic: no random choice is made (the greedy seeds are argmaxes, ties to the lowest
+/// index), and all reductions use fixed chunks, so the same input gives bit-identical output
+/// for any number of rayon threads. There is therefore no `seed` option.
+///
 /// Errors: sizes (N < 2, M = 0, `x.len() != N·M`, distance provider with another M), invalid
 /// options, non-finite or constant data, or a failed factorization.
 pub fn fit_col_major<D: ColumnDistances>(
@@ -1462,8 +1478,9 @@ pub fn fit_col_major<D: ColumnDistances>(
     if std.is_nan() || std <= 0.0 {
         return Err(ModelError::Invalid("splocs: the data are constant".into()));
     }
-    let scale = 1.0 / std;
-    let sf = scale as f32;
+    // s rounded to f32 first, so that the stored scale is exactly the one applied to X.
+    let sf = (1.0 / std) as f32;
+    let scale = sf as f64;
     x.par_chunks_mut(1 << 16).for_each(|ch| {
         for v in ch {
             *v *= sf;

@@ -639,6 +639,30 @@ fn planted_components_are_recovered() {
         assert!(d < 0.05, "β5[{k}] {} vs W {}", b5[k], dec.weights[(5, k)]);
     }
     assert!(enc.encode(&x[1..]).is_err());
+    // The dense and sparse Gram paths agree.
+    let g = dec.components.gram();
+    let mut g_ref = vec![0.0f64; 64];
+    for a in 0..8 {
+        for b in 0..8 {
+            g_ref[a * 8 + b] = rows[a].iter().zip(&rows[b]).map(|(p, q)| p * q).sum();
+        }
+    }
+    let scale = g_ref.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(
+        g.iter()
+            .zip(&g_ref)
+            .all(|(p, q)| (p - q).abs() < 1e-12 * scale)
+    );
+    let sparse = splocs::SparseRows {
+        n_cols: 100, // 1.3 % stored: the sparse path
+        row_ptr: vec![0, 2, 2, 4],
+        col_idx: vec![1, 7, 0, 7],
+        values: vec![2.0, -1.0, 3.0, 4.0],
+    };
+    assert_eq!(
+        sparse.gram(),
+        vec![5.0, 0.0, -4.0, 0.0, 0.0, 0.0, -4.0, 0.0, 25.0]
+    );
 }
 
 #[test]
