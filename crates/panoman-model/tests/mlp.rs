@@ -86,6 +86,10 @@ fn overfits_32_samples() {
     };
     let report = train(&mut model, &data, None, &cfg, &mut go_on).unwrap();
     let loss = evaluate(&model, &data, &Loss::Mse).unwrap();
+    eprintln!(
+        "overfit: normalized MSE {loss:e} after {} steps",
+        report.steps
+    );
     assert!(
         loss < 1e-6,
         "overfit loss {loss:e} (first epoch {:e})",
@@ -232,6 +236,7 @@ fn metric_and_mse_gradients_match_finite_differences() {
                 / (2.0 * h);
             let an: f64 = grad.iter().zip(&d).map(|(g, d)| f64::from(*g) * d).sum();
             let rel = (fd - an).abs() / fd.abs().max(1e-12);
+            eprintln!("{loss:?}: directional derivative rel error {rel:e}");
             assert!(
                 rel < 1e-4,
                 "{loss:?} trial {trial}: fd {fd} analytic {an} rel {rel:e}"
@@ -301,6 +306,7 @@ fn jacobian_matches_finite_differences() {
         }
         let nin = sizes[0];
         let mut checked = 0;
+        let (mut worst, mut worst32) = (0.0f64, 0.0f64);
         for _ in 0..20 {
             let x: Vec<f32> = (0..nin).map(|_| (2.0 * g.normal()) as f32).collect();
             let (y, jac) = model.jacobian(&x);
@@ -339,6 +345,8 @@ fn jacobian_matches_finite_differences() {
             // ≤ 6e−8 relative) and multiplied in f64; the f64 FD of the exact piecewise-linear
             // function has ~1e−10 error. 1e−6 leaves a wide margin; the f32 product adds ~1e−7.
             assert!(rel < 1e-6, "{sizes:?}: factored Jacobian rel error {rel:e}");
+            worst = worst.max(rel);
+            worst32 = worst32.max(rel32);
             assert!(
                 rel32 < 1e-5,
                 "{sizes:?}: dense f32 Jacobian rel error {rel32:e}"
@@ -363,6 +371,9 @@ fn jacobian_matches_finite_differences() {
             checked += 1;
         }
         assert!(checked >= 15, "{sizes:?}: only {checked} points checked");
+        eprintln!(
+            "Jacobian {sizes:?}: {checked} points, max rel error {worst:e} (f64 product), {worst32:e} (f32)"
+        );
     }
 }
 
@@ -438,6 +449,7 @@ fn pca_head_is_orthonormal_and_near_optimal() {
         }
     }
     assert!(worst < 1e-6, "‖PᵀP − I‖_max = {worst:e}");
+    eprintln!("PCA head: ‖PᵀP − I‖_max = {worst:e}, rank {r}");
     // Exact optimum: top-r eigenvalues of ỸỸᵀ (N × N, f64).
     let yt = Mat::<f64>::from_fn(n, d, |i, j| f64::from((y[(i, j)] - head.mean()[j]) * w[j]));
     let gram = &yt * yt.transpose();
@@ -449,6 +461,10 @@ fn pca_head_is_orthonormal_and_near_optimal() {
     assert!(
         fit.explained_ratio >= 0.99,
         "explained {}",
+        fit.explained_ratio
+    );
+    eprintln!(
+        "PCA head: explained {} vs optimal rank-{r} {best}",
         fit.explained_ratio
     );
     assert!(
@@ -653,6 +669,16 @@ fn serialization_round_trip_is_bit_exact_and_validated() {
     s.set_metadata("mlp.motion", "{not json");
     expect(&s, "mlp.motion", "config 'mlp.motion' is not valid");
     assert!(s.to_bytes().is_ok());
+    s.set_metadata(
+        "mlp.motion",
+        r#"{"kind":"panoman.mlp","version":1,"sizes":[8,1000000000000,3],"activation":"relu"}"#,
+    );
+    expect(&s, "mlp.motion", "expected [1000000000000, 8]");
+    s.set_metadata(
+        "mlp.motion",
+        r#"{"kind":"panoman.mlp","version":2,"sizes":[8,3],"activation":"relu"}"#,
+    );
+    expect(&s, "mlp.motion", "panoman.mlp v2, expected panoman.mlp v1");
     // A truncated file is a Format error naming the path.
     let bytes = std::fs::read(&path).unwrap();
     let e = TensorStore::from_bytes(&bytes[..bytes.len() - 10], &path).unwrap_err();

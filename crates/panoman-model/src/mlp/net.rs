@@ -157,9 +157,13 @@ impl Mlp {
         }
     }
 
-    /// Number of parameters of a network with widths `sizes` (weights and biases).
+    /// Number of parameters `Σ_l (in_l + 1)·out_l` of a network with widths `sizes` (weights
+    /// and biases); saturates at `usize::MAX` instead of overflowing.
     pub fn parameter_count(sizes: &[usize]) -> usize {
-        sizes.windows(2).map(|p| (p[0] + 1) * p[1]).sum()
+        sizes
+            .windows(2)
+            .map(|p| p[0].saturating_add(1).saturating_mul(p[1]))
+            .fold(0usize, usize::saturating_add)
     }
 
     pub(crate) fn layout(&self) -> &[LayerLayout] {

@@ -474,7 +474,8 @@ impl Mlp {
             )));
         }
         let sizes = cfg.sizes;
-        let mut params = Vec::with_capacity(Mlp::parameter_count(&sizes));
+        // Grown tensor by tensor: every size is checked against a stored tensor first.
+        let mut params = Vec::new();
         for (l, pair) in sizes.windows(2).enumerate() {
             let (i, o) = (pair[0], pair[1]);
             let w = store.f32_tensor(&format!("{prefix}.layer{l}.weight"), &[o, i])?;
