@@ -86,6 +86,9 @@ pub struct GStats {
     /// Whether the frame solve met its tolerance (false: it stopped at the iteration cap and the
     /// result is the best iterate, still finite).
     pub frame_converged: bool,
+    /// Target lengths raised to the floor `ℓ_r·MIN_RELATIVE_LENGTH` (RL < −1 + floor), by
+    /// [`Reconstructor::reconstruct_rla`].
+    pub clamped_lengths: usize,
 }
 
 /// Per-topology state of `g`: tables, gauge choice, BFS tree and the two constant Cholesky
@@ -419,11 +422,21 @@ impl Reconstructor {
             std::mem::take(&mut ws.lengths),
             std::mem::take(&mut ws.angles),
         );
-        rest.targets_into(rla, &mut lengths, &mut angles);
+        if let Some(e) = rla.rl.iter().chain(&rla.ra).position(|x| !x.is_finite()) {
+            return Err(MeshError::NonFinite(format!(
+                "RLA value {e} is {}",
+                if e < ne { rla.rl[e] } else { rla.ra[e - ne] }
+            )));
+        }
+        let clamped = rest.targets_into(rla, &mut lengths, &mut angles);
         let res = self.reconstruct(ws, &lengths, &angles, gauge, out);
         ws.lengths = lengths;
         ws.angles = angles;
-        res
+        ws.stats.clamped_lengths = clamped;
+        res.map(|mut st| {
+            st.clamped_lengths = clamped;
+            st
+        })
     }
 
     /// `g` from target lengths ℓ* (#E, > 0) and target signed dihedral angles φ* (#E; ignored
@@ -824,6 +837,7 @@ impl Reconstructor {
             frame_residual: res,
             max_projection: 0.0,
             frame_converged: res <= tol,
+            clamped_lengths: 0,
         })
     }
 }

@@ -22,6 +22,10 @@ use crate::topology::{NONE, Topology};
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
+/// Smallest target length relative to the rest length that [`RestGeometry::targets_into`]
+/// produces (`1 + RL` is clamped to at least this).
+pub const MIN_RELATIVE_LENGTH: f64 = 1e-3;
+
 /// Edges per rayon task: per-edge work is ~20 ns, so small chunks only add overhead.
 const EDGE_CHUNK: usize = 4096;
 
@@ -126,15 +130,27 @@ impl RestGeometry {
         })
     }
 
-    /// Target lengths and angles `ℓ* = ℓ_r ⊙ (1 + RL)`, `φ* = φ_r + RA` (algorithms.md §1.1),
-    /// written into `lengths`, `angles`.
-    pub fn targets_into(&self, rla: &Rla, lengths: &mut [f64], angles: &mut [f64]) {
+    /// Target lengths and angles `ℓ* = ℓ_r ⊙ max(1 + RL, ε)`, `φ* = φ_r + RA` (algorithms.md
+    /// §1.1), written into `lengths`, `angles`; returns how many lengths were clamped.
+    ///
+    /// Blended or model-predicted RL (linear in β) can fall below −1 on edges whose RL varies
+    /// strongly (lips, eyelids); the floor [`MIN_RELATIVE_LENGTH`] keeps every target length
+    /// positive so that `g` stays defined.
+    pub fn targets_into(&self, rla: &Rla, lengths: &mut [f64], angles: &mut [f64]) -> usize {
+        let mut clamped = 0;
         for (o, (&lr, &rl)) in lengths.iter_mut().zip(self.lengths.iter().zip(&rla.rl)) {
-            *o = lr * (1.0 + rl);
+            let f = 1.0 + rl;
+            *o = if f >= MIN_RELATIVE_LENGTH {
+                lr * f
+            } else {
+                clamped += 1;
+                lr * MIN_RELATIVE_LENGTH
+            };
         }
         for (o, (&ar, &ra)) in angles.iter_mut().zip(self.angles.iter().zip(&rla.ra)) {
             *o = ar + ra;
         }
+        clamped
     }
 }
 

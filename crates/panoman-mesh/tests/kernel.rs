@@ -509,13 +509,28 @@ fn g_on_noisy_rla_is_finite_and_close() {
     // Noise is not integrable, so g spreads it: the shape must still be recognisably the
     // target (mean error well below the 2.3 m bbox diagonal; typically a few % of it).
     assert!(mean < 0.1 * bbox_diag(&posed), "mean {mean} {stats:?}");
-    // Targets that are not finite or not positive are rejected.
-    rla.rl[3] = -1.0;
-    assert!(
-        rec.reconstruct_rla(
+    // RL below −1 (impossible lengths from blended data) is clamped, not an error; raw
+    // non-positive target lengths and NaN are rejected.
+    rla.rl[3] = -1.5;
+    let st = rec
+        .reconstruct_rla(
             &mut ws,
             &rg,
             &rla,
+            &rec.gauge_from(&rest).unwrap(),
+            &mut out,
+        )
+        .unwrap();
+    assert_eq!(st.clamped_lengths, 1);
+    assert!(out.iter().flatten().all(|c| c.is_finite()));
+    let mut lengths = panoman_mesh::rla::edge_lengths(&t, &posed);
+    let angles = dihedral_angles(&t, &posed);
+    lengths[7] = -0.1;
+    assert!(
+        rec.reconstruct(
+            &mut ws,
+            &lengths,
+            &angles,
             &rec.gauge_from(&rest).unwrap(),
             &mut out
         )

