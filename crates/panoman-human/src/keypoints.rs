@@ -35,18 +35,23 @@
 //! `k` vertices nearest to the target on the default identity's rest mesh, among the body
 //! part's vertices for body joints (the wrists also their hand's), the hand part grown by 3
 //! rings for hand joints, the face part for the pupils; the weights minimise the squared
-//! error over all training samples and coordinates subject to `Σ w = 1` (KKT system) with a
-//! ridge `λ = ridge · tr(A)/k`, each sample centred on its candidates' mean. Samples: sample
-//! `i` of `n_train` uses `stream_rng(seed, DOMAIN_KEYPOINT_TRAIN, i)` for an identity
+//! error over all training samples and coordinates subject to `Σ w = 1` (KKT system) plus a
+//! ridge `λ ‖w‖²`, `λ = ridge · tr(A)/k` (per group: body 1e-5, hands 1e-4, pupils 1e-3),
+//! each sample centred on its candidates' mean. The ridge is an i.i.d. vertex-noise prior:
+//! it keeps the noise gain `‖w‖₂` (vertex noise → keypoint noise) at about 5 for the body
+//! and 1.5 for the hands and the pupils (a nearly unregularised fit, ridge 1e-7, is 0.7 mm
+//! more accurate on the body and 0.1 mm on the hands, with gains of 10–27). Samples: sample `i` of `n_train` uses
+//! `stream_rng(seed, DOMAIN_KEYPOINT_TRAIN, i)` for an identity
 //! ([`crate::sampling::IdentitySampler`]), a body pose
 //! ([`crate::sampling::BodyPoseSampler`]) whose hands get gestures
 //! ([`crate::sampling::HandSampler`]) and, with probability [`EXPRESSION_FRACTION`], a facial
 //! expression ([`crate::sampling::ExpressionSampler`], gaze units and eye bones left out).
 //! The held-out samples come from [`DOMAIN_KEYPOINT_TEST`]: other identities and poses.
 //! Held-out accuracy of the default fit (800 training, 200 held-out samples), mean / max:
-//! full template — body 0.56 / 6.2 mm, hands 0.22 / 3.0 mm, pupils 0.19 / 1.2 mm; small
-//! topology — body 2.1 / 17.6 mm, hands 0.33 / 3.1 mm, pupils 0.34 / 2.0 mm
-//! ([`KeypointDefinitions::held_out_full`] has the numbers of a build).
+//! full template — body 1.28 / 10.7 mm (hips and knees ≈ 2 mm, wrists and ankles ≤ 0.4 mm),
+//! hands 0.30 / 3.7 mm, pupils 0.37 / 2.3 mm; small topology — body 2.6 / 20 mm, hands
+//! 0.34 / 3.5 mm, pupils 0.43 / 1.9 mm ([`KeypointDefinitions::held_out_full`] and
+//! [`KeypointDefinitions::held_out_small`] carry the numbers of a build).
 //!
 //! **Surface points** ([`KeypointKind::Surface`]: face landmarks 0–67, `nose` = `face_30`,
 //! the fingertips) are barycentric points of template triangles (3-vertex rows), picked on
@@ -107,7 +112,8 @@
 //! per-sample streams, sums in sample order); a build takes 2–4 s including loading the
 //! generator, so [`load_or_build`] caches them as JSON in `<asset dir>-derived/`
 //! ([`CACHE_FILE`], full rows by base-mesh index) and rebuilds when the file is missing or
-//! invalid or its version, asset version or settings differ.
+//! invalid or its version, asset version or settings differ. Changes to the rules, the
+//! samplers or the generator must bump [`DEFINITIONS_VERSION`] (and the file name).
 //!
 //! # Keypoints files
 //! [`KeypointsFile`]: `{"units": "m", "keypoints": {name: [x, y, z]}, "weights": {name: w}}`
@@ -1538,8 +1544,12 @@ pub struct FitConfig {
     pub n_train: usize,
     /// Number of held-out samples (other identities and poses).
     pub n_test: usize,
-    /// Ridge weight, relative to the mean diagonal of the normal matrix.
-    pub ridge: f64,
+    /// Ridge weight of the body joints, relative to the mean diagonal of the normal matrix.
+    pub ridge_body: f64,
+    /// Ridge weight of the hand joints (relative).
+    pub ridge_hand: f64,
+    /// Ridge weight of the pupils (relative).
+    pub ridge_pupil: f64,
     /// Candidate vertices per body joint (full template).
     pub k_body: usize,
     /// Candidate vertices per hand joint (full template).
@@ -1561,7 +1571,9 @@ impl Default for FitConfig {
             seed: 127,
             n_train: 800,
             n_test: 200,
-            ridge: 1e-7,
+            ridge_body: 1e-5,
+            ridge_hand: 1e-4,
+            ridge_pupil: 1e-3,
             k_body: 200,
             k_hand: 32,
             k_pupil: 32,
@@ -1583,6 +1595,11 @@ pub struct GroupError {
     pub mean_mm: f64,
     /// Largest error in millimetres.
     pub max_mm: f64,
+    /// Mean over the group's regressors of `‖w‖₂`, the gain from i.i.d. vertex noise to
+    /// keypoint noise (per coordinate); 1/√k for a uniform average of k vertices.
+    pub noise_gain: f64,
+    /// Largest `‖w‖₂` in the group.
+    pub max_noise_gain: f64,
 }
 
 /// Held-out error of one regressed keypoint.
@@ -1751,7 +1768,8 @@ fn nearest(p: V3, allowed: &[u32], pos: &[V3], k: usize) -> Vec<u32> {
 }
 
 /// Fits affine weights (`Σ w = 1`) of the candidate columns `cols` (indices into each
-/// sample's kept positions) to the truth `t` of every sample, with a ridge `λ · tr(A)/n`.
+/// sample's kept positions) to the truth `t` of every sample, with a ridge `λ = ridge · tr(A)/n`
+/// (an i.i.d. vertex-noise prior: it bounds `‖w‖₂`).
 /// Each sample is centred on its candidates' mean first (translation equivariance).
 fn fit_regressor(
     kept: &[Vec<V3>],
@@ -1805,7 +1823,11 @@ fn fit_regressor(
 
 /// Per-group error statistics of the regressed keypoints `targets` (TC-127 indices) given
 /// per-sample errors `err[sample][target]` in metres.
-fn group_errors(targets: &[(usize, Target)], err: &[Vec<f64>]) -> Vec<GroupError> {
+fn group_errors(
+    targets: &[(usize, Target)],
+    rows: &[Vec<(u32, f64)>],
+    err: &[Vec<f64>],
+) -> Vec<GroupError> {
     let mut out = Vec::new();
     let groups: [(&str, &[KeypointGroup]); 5] = [
         ("body", &[KeypointGroup::Body]),
@@ -1835,11 +1857,17 @@ fn group_errors(targets: &[(usize, Target)], err: &[Vec<f64>]) -> Vec<GroupError
                 cnt += 1;
             }
         }
+        let gains: Vec<f64> = cols
+            .iter()
+            .map(|&c| rows[c].iter().map(|e| e.1 * e.1).sum::<f64>().sqrt())
+            .collect();
         out.push(GroupError {
             group: name.into(),
             n_keypoints: cols.len(),
             mean_mm: 1e3 * sum / cnt.max(1) as f64,
             max_mm: 1e3 * max,
+            noise_gain: gains.iter().sum::<f64>() / gains.len() as f64,
+            max_noise_gain: gains.iter().copied().fold(0.0, f64::max),
         });
     }
     out
@@ -2072,7 +2100,12 @@ pub fn build_definitions(
             .enumerate()
             .map(|(c, cand)| {
                 let cols: Vec<usize> = cand.iter().map(|&v| col(v)).collect();
-                let w = fit_regressor(kept_train, &train.truth, c, &cols, config.ridge)?;
+                let ridge = match KeypointGroup::of(builder.targets[c].0) {
+                    KeypointGroup::Body => config.ridge_body,
+                    KeypointGroup::Face => config.ridge_pupil,
+                    _ => config.ridge_hand,
+                };
+                let w = fit_regressor(kept_train, &train.truth, c, &cols, ridge)?;
                 let mut row: Vec<(u32, f64)> = cand.iter().copied().zip(w).collect();
                 row.sort_by_key(|e| e.0);
                 Some(row)
@@ -2114,7 +2147,8 @@ pub fn build_definitions(
                 }
             })
             .collect();
-        Ok((out, group_errors(&builder.targets, &err), per))
+        let groups = group_errors(&builder.targets, &out, &err);
+        Ok((out, groups, per))
     };
     let (reg_full, held_out_full, keypoint_errors_full) =
         fit(&cand_full, &keep_full, &train.full, &test.full)?;

@@ -117,7 +117,7 @@ fn held_out_accuracy_per_group() {
     assert_eq!(group(full, "body").n_keypoints, 14);
     assert_eq!(group(full, "hands").n_keypoints, 32);
     assert_eq!(group(full, "face").n_keypoints, 2);
-    // Full template: ≤ 3 mm mean per group (measured ≈ 0.6 body, 0.2 hands, 0.2 pupils).
+    // Full template: ≤ 3 mm mean per group (measured ≈ 1.6 body, 0.3 hands, 0.4 pupils).
     for g in ["body", "left_hand", "right_hand", "hands", "face"] {
         assert!(
             group(full, g).mean_mm <= 3.0,
@@ -125,11 +125,21 @@ fn held_out_accuracy_per_group() {
             group(full, g)
         );
     }
-    assert!(group(full, "body").max_mm < 15.0);
+    assert!(group(full, "body").max_mm < 20.0);
     assert!(group(full, "hands").max_mm < 6.0);
-    // Small topology (1,229 vertices): measured ≈ 2.3 mm body, 0.35 mm hands.
+    // Noise gains ‖w‖₂ stay moderate (measured ≈ 5 body, 1.5 hands and pupils).
+    assert!(group(full, "body").noise_gain < 8.0);
+    assert!(group(full, "hands").noise_gain < 3.0);
+    assert!(group(full, "face").noise_gain < 3.0);
+    // Small topology (1,229 vertices, coarse around the hips and knees): measured ≈ 2.9 mm
+    // body, 0.35 mm hands, 0.47 mm pupils with this fit.
     let small = &f.defs.held_out_small;
-    for g in ["body", "hands", "face"] {
+    assert!(
+        group(small, "body").mean_mm <= 4.0,
+        "{:?}",
+        group(small, "body")
+    );
+    for g in ["hands", "face"] {
         assert!(
             group(small, g).mean_mm <= 3.0,
             "small {g}: {:?}",
