@@ -327,17 +327,15 @@ impl PanoManModel {
                 }
             }
         }
-        if correction {
-            if let Some(r) = self.correction_residual(params) {
-                let bl = &self.blocks[0];
-                let ba = &self.blocks[3];
-                let n1 = bl.columns.len();
-                for (j, &e) in bl.columns.iter().enumerate() {
-                    rla.rl[e as usize] += r[j] as f64;
-                }
-                for (j, &e) in ba.columns.iter().enumerate() {
-                    rla.ra[e as usize] += r[n1 + j] as f64;
-                }
+        if correction && let Some(r) = self.correction_residual(params) {
+            let bl = &self.blocks[0];
+            let ba = &self.blocks[3];
+            let n1 = bl.columns.len();
+            for (j, &e) in bl.columns.iter().enumerate() {
+                rla.rl[e as usize] += r[j] as f64;
+            }
+            for (j, &e) in ba.columns.iter().enumerate() {
+                rla.ra[e as usize] += r[n1 + j] as f64;
             }
         }
         rla

@@ -48,7 +48,9 @@ pub struct TrainConfig {
     pub margin_rings: usize,
     /// SPLOCS outer iterations cap.
     pub splocs_outer_iters: usize,
-    /// SPLOCS sparsity weight λ.
+    /// SPLOCS sparsity weight λ at N = 100 samples; a block with N rows uses
+    /// `λ·sqrt(N/100)` (the residual noise a component absorbs grows like √N, so a fixed λ
+    /// leaves components dense on large data).
     pub splocs_lambda: f64,
     /// Support bounds d_min (metres): body, face/hands.
     pub d_min_body: [f64; 2],
@@ -351,7 +353,7 @@ pub fn train(
             let mut opts =
                 SplocsOptions::new(cfg.components[part].min(n.saturating_sub(1)).max(1), bounds);
             opts.max_outer_iters = cfg.splocs_outer_iters;
-            opts.lambda = cfg.splocs_lambda;
+            opts.lambda = cfg.splocs_lambda * (n as f64 / 100.0).sqrt().max(1.0);
             let dec = splocs::fit_col_major(data, n, &dists, &opts, |_| {})?;
             dec_report.insert(
                 name.into(),

@@ -90,6 +90,10 @@ fn small_model_trains_poses_and_encodes() {
     assert_eq!(model.topology_name, "small");
     assert_eq!(model.blocks.len(), 6);
     assert!(model.correction.is_some() && model.motion.is_some());
+    // The TC-127 keypoints travel with the model and evaluate on its meshes.
+    assert_eq!(model.keypoints.names.len(), 127);
+    assert_eq!(model.keypoints.names[0], "neck");
+    assert!(model.keypoints.rows.iter().all(|r| !r.is_empty()));
     let report: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(model_path.with_extension("report.json")).unwrap(),
     )

@@ -6,7 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use panoman_human::dataset::Dataset;
 use panoman_human::regions::Regions;
-use panoman_human::template::{full_template, small_template};
+use panoman_human::template::{TopologyKind, full_template, small_template};
 use panoman_model::model::KeypointRows;
 use panoman_model::train::{TrainConfig, TrainInputs, evaluate, train};
 use std::path::PathBuf;
@@ -48,25 +48,31 @@ pub fn run(a: TrainArgs) -> Result<()> {
         .unwrap_or("")
         .to_string();
     let full_regions = Regions::full(&assets, &full)?;
-    let (faces, regions) = match topo_name.as_str() {
-        "full" => (full.mesh.faces.clone(), full_regions),
+    let small = small_template(&assets, &full)?;
+    let kp_defs = panoman_human::keypoints::load_or_build(&assets, &full, &small)?;
+    let (faces, regions, kind) = match topo_name.as_str() {
+        "full" => (full.mesh.faces.clone(), full_regions, TopologyKind::Full),
         "small" => {
-            let small = small_template(&assets, &full)?;
             let r = Regions::small(&full_regions, &small)
                 .map_err(|e| anyhow::anyhow!("small regions: {e}"))?;
-            (small.mesh.faces.clone(), r)
+            (small.mesh.faces.clone(), r, TopologyKind::Small)
         }
         other => bail!(
             "{}: unknown topology '{other}' in dataset.json",
             a.data.display()
         ),
     };
+    let kp = kp_defs.set(kind);
+    let keypoints = KeypointRows {
+        names: kp.names.clone(),
+        rows: kp.rows.clone(),
+    };
     let inputs = TrainInputs {
         dataset: &ds,
         topology_name: topo_name.clone(),
         faces,
         regions: &regions,
-        keypoints: KeypointRows::default(),
+        keypoints,
     };
     let pb = indicatif::ProgressBar::new_spinner();
     pb.enable_steady_tick(Duration::from_millis(150));
