@@ -9,7 +9,7 @@ use faer::sparse::linalg::cholesky::{
     CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
     factorize_symbolic_cholesky,
 };
-use faer::sparse::{SparseColMat, Triplet};
+use faer::sparse::{SparseColMat, SparseColMatRef, SymbolicSparseColMatRef, Triplet};
 use faer::{Conj, MatMut, Par, Side};
 
 /// Cholesky factor `A = L Lᵀ` of a sparse SPD matrix (AMD ordering, supernodal or simplicial as
@@ -96,6 +96,51 @@ impl SpdFactor {
                 LltRegularization::default(),
                 par,
                 MemStack::new(&mut mem),
+                Default::default(),
+            )
+            .map_err(|e| MeshError::Numerical(format!("matrix is not positive definite: {e:?}")))?;
+        Ok(())
+    }
+
+    /// Symbolic analysis (AMD ordering, faer's supernodal/simplicial choice) of the lower
+    /// triangle pattern `a`, without a numeric factorization: call
+    /// [`SpdFactor::refactor_ref`] before solving. Used when the pattern is built once and the
+    /// values are assembled into a caller-owned array (algorithms.md §4.4, scatter map).
+    pub fn symbolic_only(a: SymbolicSparseColMatRef<'_, usize>) -> Result<Self> {
+        let n = a.nrows();
+        let symbolic =
+            factorize_symbolic_cholesky(a, Side::Lower, SymmetricOrdering::Amd, Default::default())
+                .map_err(|e| MeshError::Numerical(format!("symbolic Cholesky failed: {e:?}")))?;
+        Ok(Self {
+            values: vec![0.0; symbolic.len_val()],
+            symbolic,
+            n,
+        })
+    }
+
+    /// Scratch needed by [`SpdFactor::refactor_ref`] with parallelism `par`.
+    pub fn refactor_scratch(&self, par: Par) -> StackReq {
+        self.symbolic
+            .factorize_numeric_llt_scratch::<f64>(par, Default::default())
+    }
+
+    /// Numeric refactorization of a borrowed matrix with the pattern analysed at creation, using
+    /// caller-owned scratch (sized by [`SpdFactor::refactor_scratch`] for the same `par`): no
+    /// allocation. Fails if the matrix is not numerically positive definite.
+    pub fn refactor_ref(
+        &mut self,
+        a: SparseColMatRef<'_, usize, f64>,
+        par: Par,
+        scratch: &mut MemBuffer,
+    ) -> Result<()> {
+        self.symbolic
+            .factorize_numeric_llt(
+                &mut self.values,
+                a,
+                Side::Lower,
+                LltRegularization::default(),
+                par,
+                MemStack::new(scratch),
                 Default::default(),
             )
             .map_err(|e| MeshError::Numerical(format!("matrix is not positive definite: {e:?}")))?;

@@ -1,0 +1,1008 @@
+//! Discrete-shell refinement of vertex positions toward target edge lengths and dihedral angles
+//! (algorithms.md §4.1–4.5, restricted to the vertex unknowns V).
+//!
+//! `g` (algorithms.md §2) is exact for integrable RL/RA but amplifies non-integrable errors; the
+//! paper uses it only as an initializer. [`ShellSolver`] minimises
+//!
+//! ```text
+//! E(V) = Σ_e w_L,e (ℓ_e(V)/ℓ*_e − 1)²  +  Σ_{e interior} w_A,e wrap(φ_e(V) − φ*_e)²
+//!        + Σ_h w_h |x_h − x̂_h|²
+//! ```
+//!
+//! with Levenberg–Marquardt: residuals `r_L,e = √w_L,e (ℓ_e/ℓ*_e − 1)` (Jacobian row
+//! `√w_L,e/ℓ*_e · (−ê, ê)` on (x_i, x_j), §1.2), `r_A,e = √w_A,e wrap(φ_e − φ*_e)` (row
+//! `√w_A,e ∇φ_e` on (x_i, x_j, x_k, x_l), §1.2), `r_h = √w_h (x_h − x̂_h)` (row `√w_h I`).
+//! With `g = Jᵀr` (so `∇E = 2g`) each iteration solves
+//!
+//! ```text
+//! (JᵀJ + μ D) δ = −g,    D = max(diag JᵀJ, 1e−8·max diag JᵀJ)        (§4.4, Marquardt scaling)
+//! ```
+//!
+//! JᵀJ has a fixed pattern of 3×3 blocks over the vertex pairs in edges ∪ diamond diagonals
+//! (k, l) ∪ diagonal (§4.3); it is stored as a scalar lower-triangular CSC matrix of size 3|V|,
+//! analysed symbolically once, and filled through a per-edge *scatter map* of value slots (§4.4).
+//! The damping μ follows Nielsen's rule (§4.5). Default weights: `w_L = 1`,
+//! `w_A = c_B² ω_e²` with the dimensionless Fröhlich–Botsch weight
+//! `ω_e = ℓ*_e / sqrt((A_fL + A_fR)/3)` measured on the initial mesh (§4.1).
+
+use crate::error::{MeshError, Result};
+use crate::geom::{V3, cross, dot, norm, scale, sub};
+use crate::rla::{
+    RestGeometry, Rla, check_positions, dihedral_angle, dihedral_gradient, wrap_angle,
+};
+use crate::sparse::SpdFactor;
+use crate::topology::{NONE, Topology};
+use faer::dyn_stack::MemBuffer;
+use faer::sparse::{SparseColMat, SparseColMatRef, SymbolicSparseColMat};
+use faer::{MatMut, Par};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// Edges per rayon task in the residual/Jacobian evaluation.
+const EDGE_CHUNK: usize = 2048;
+
+/// Smallest damping factor μ (keeps the rigid null space of JᵀJ damped, §6 item 8).
+const MU_MIN: f64 = 1e-10;
+
+/// Largest damping factor μ before the solver gives up (steps are then vanishingly small).
+const MU_MAX: f64 = 1e16;
+
+/// A soft positional constraint `w |x_v − x̂|²` (algorithms.md §4.2, vertex handles). `weight`
+/// has units 1/length², e.g. `λ_H/ℓ̄²` for a dimensionless λ_H.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Handle {
+    /// Constrained vertex.
+    pub vertex: u32,
+    /// Target position x̂.
+    pub position: V3,
+    /// Weight w ≥ 0.
+    pub weight: f64,
+}
+
+/// Targets and weights of the shell energy (module docs, algorithms.md §4.1): per edge the
+/// target length ℓ*_e > 0, target signed dihedral angle φ*_e (internal sign, §1.1; ignored on
+/// boundary edges), weights w_L,e ≥ 0 and w_A,e ≥ 0, and optional vertex handles.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShellTargets {
+    /// Target lengths ℓ* (metres), #E, all positive.
+    pub lengths: Vec<f64>,
+    /// Target dihedral angles φ* (radians), #E; only interior edges are used. Need not lie in
+    /// (−π, π]: only `wrap(φ − φ*)` enters.
+    pub angles: Vec<f64>,
+    /// Stretch weights w_L (dimensionless), #E.
+    pub length_weights: Vec<f64>,
+    /// Bend weights w_A (dimensionless), #E; boundary entries are ignored.
+    pub angle_weights: Vec<f64>,
+    /// Soft vertex handles.
+    pub handles: Vec<Handle>,
+}
+
+impl ShellTargets {
+    /// Targets `ℓ*`, `φ*` with the default weights: `w_L = 1`, `w_A = c_B² ω_e²`,
+    /// `ω_e = ℓ*_e / sqrt((A_fL + A_fR)/3)` with the face areas of `x_init` (algorithms.md §4.1;
+    /// see [`ShellTargets::bending_weights`]).
+    pub fn new(
+        topo: &Topology,
+        lengths: Vec<f64>,
+        angles: Vec<f64>,
+        x_init: &[V3],
+        c_b: f64,
+    ) -> Result<Self> {
+        check_positions(topo, x_init, "initial mesh")?;
+        let ne = topo.n_edges();
+        if lengths.len() != ne || angles.len() != ne {
+            return Err(MeshError::Mismatch(format!(
+                "shell targets have {} lengths and {} angles, the topology has {ne} edges",
+                lengths.len(),
+                angles.len()
+            )));
+        }
+        let angle_weights = Self::bending_weights(topo, &lengths, x_init, c_b);
+        let t = Self {
+            length_weights: vec![1.0; ne],
+            angle_weights,
+            lengths,
+            angles,
+            handles: Vec::new(),
+        };
+        t.validate(topo)?;
+        Ok(t)
+    }
+
+    /// Targets from an RLA pair: `ℓ* = ℓ_r ⊙ max(1 + RL, ε)`, `φ* = φ_r + RA`
+    /// ([`RestGeometry::targets_into`], algorithms.md §1.1), default weights as in
+    /// [`ShellTargets::new`].
+    pub fn from_rla(
+        topo: &Topology,
+        rest: &RestGeometry,
+        rla: &Rla,
+        x_init: &[V3],
+        c_b: f64,
+    ) -> Result<Self> {
+        let ne = topo.n_edges();
+        if rla.rl.len() != ne || rla.ra.len() != ne || rest.lengths.len() != ne {
+            return Err(MeshError::Mismatch(format!(
+                "RLA/rest geometry sizes ({}, {}, {}) do not match the {ne} edges",
+                rla.rl.len(),
+                rla.ra.len(),
+                rest.lengths.len()
+            )));
+        }
+        let mut lengths = vec![0.0; ne];
+        let mut angles = vec![0.0; ne];
+        rest.targets_into(rla, &mut lengths, &mut angles);
+        Self::new(topo, lengths, angles, x_init, c_b)
+    }
+
+    /// The lengths and angles of `x` itself as targets (E(x) = 0), default weights.
+    pub fn from_positions(topo: &Topology, x: &[V3], c_b: f64) -> Result<Self> {
+        let rest = RestGeometry::new(topo, x)?;
+        Self::new(topo, rest.lengths, rest.angles, x, c_b)
+    }
+
+    /// Default bend weights `w_A,e = c_B² ω_e²`, `ω_e² = 3 ℓ*_e² / (A_fL + A_fR)` with the face
+    /// areas of `x` (algorithms.md §4.1; dimensionless, so the stretch/bend balance does not
+    /// depend on units). 0 on boundary edges and on diamonds of (near-)zero area.
+    pub fn bending_weights(topo: &Topology, lengths: &[f64], x: &[V3], c_b: f64) -> Vec<f64> {
+        let area = |f: u32| {
+            let [a, b, c] = topo.faces[f as usize];
+            let (a, b, c) = (x[a as usize], x[b as usize], x[c as usize]);
+            0.5 * norm(cross(sub(b, a), sub(c, a)))
+        };
+        (0..topo.n_edges())
+            .map(|e| {
+                let [fl, fr] = topo.edge_faces[e];
+                if fr == NONE {
+                    return 0.0;
+                }
+                let s = area(fl) + area(fr);
+                let l2 = lengths[e] * lengths[e];
+                if s > 1e-12 * l2 && s.is_finite() {
+                    c_b * c_b * 3.0 * l2 / s
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+
+    /// Checks sizes, positivity of ℓ*, finiteness, non-negative weights and handle indices.
+    pub fn validate(&self, topo: &Topology) -> Result<()> {
+        let ne = topo.n_edges();
+        for (name, len) in [
+            ("lengths", self.lengths.len()),
+            ("angles", self.angles.len()),
+            ("length_weights", self.length_weights.len()),
+            ("angle_weights", self.angle_weights.len()),
+        ] {
+            if len != ne {
+                return Err(MeshError::Mismatch(format!(
+                    "shell targets: {name} has {len} entries, the topology has {ne} edges"
+                )));
+            }
+        }
+        if let Some(e) = self
+            .lengths
+            .iter()
+            .position(|&l| !(l > 0.0 && l.is_finite()))
+        {
+            return Err(MeshError::Numerical(format!(
+                "shell targets: target length of edge {e} is {}",
+                self.lengths[e]
+            )));
+        }
+        if let Some(e) =
+            (0..ne).find(|&e| topo.edge_faces[e][1] != NONE && !self.angles[e].is_finite())
+        {
+            return Err(MeshError::NonFinite(format!(
+                "shell targets: target angle of edge {e} is {}",
+                self.angles[e]
+            )));
+        }
+        let bad_w = |w: &f64| !(*w >= 0.0 && w.is_finite());
+        if let Some(e) = self.length_weights.iter().position(bad_w) {
+            return Err(MeshError::Numerical(format!(
+                "shell targets: stretch weight of edge {e} is {}",
+                self.length_weights[e]
+            )));
+        }
+        if let Some(e) = self.angle_weights.iter().position(bad_w) {
+            return Err(MeshError::Numerical(format!(
+                "shell targets: bend weight of edge {e} is {}",
+                self.angle_weights[e]
+            )));
+        }
+        for (h, hd) in self.handles.iter().enumerate() {
+            if hd.vertex as usize >= topo.n_vertices
+                || bad_w(&hd.weight)
+                || !hd.position.iter().all(|c| c.is_finite())
+            {
+                return Err(MeshError::Numerical(format!(
+                    "shell targets: handle {h} {hd:?} is invalid"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Mean target length ℓ̄.
+    fn mean_length(&self) -> f64 {
+        self.lengths.iter().sum::<f64>() / self.lengths.len().max(1) as f64
+    }
+}
+
+/// Controls of the Levenberg–Marquardt iteration (algorithms.md §4.5).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShellOptions {
+    /// Iteration cap (linear solves, accepted or not). Default 10.
+    pub max_iterations: usize,
+    /// Stop when the relative energy decrease `(E − E_new)/E` of accepted steps is below this
+    /// twice in a row. Default 1e−6.
+    pub rel_tol: f64,
+    /// Stop when `‖δ‖∞ < step_tol·(‖x‖∞ + step_tol)`. Default 1e−10.
+    pub step_tol: f64,
+    /// Stop when `E ≤ energy_tol` (absolute; E is dimensionless). Default 1e−24.
+    pub energy_tol: f64,
+    /// Initial damping μ. Default 1e−4.
+    pub mu_init: f64,
+    /// Bend rows of diamonds with a height `h_k` or `h_l` below `degenerate_height·ℓ̄` are left
+    /// out of the Jacobian (their residual still counts in E; §6 item 4). Default 1e−6.
+    pub degenerate_height: f64,
+    /// Numeric factorization on the rayon pool (`Par::rayon(0)`) instead of sequentially.
+    /// Default true.
+    pub parallel_factor: bool,
+}
+
+impl Default for ShellOptions {
+    fn default() -> Self {
+        Self {
+            max_iterations: 10,
+            rel_tol: 1e-6,
+            step_tol: 1e-10,
+            energy_tol: 1e-24,
+            mu_init: 1e-4,
+            degenerate_height: 1e-6,
+            parallel_factor: true,
+        }
+    }
+}
+
+/// Why [`ShellSolver::solve`] stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ShellStop {
+    /// `E ≤ energy_tol` (includes E = 0 at the start: 0 iterations).
+    Converged,
+    /// Relative decrease below `rel_tol` twice in a row.
+    SmallDecrease,
+    /// `‖δ‖∞` below `step_tol` relative to `‖x‖∞`.
+    SmallStep,
+    /// Iteration cap reached.
+    MaxIterations,
+    /// μ exceeded its cap (no decrease possible at machine precision).
+    DampingOverflow,
+}
+
+/// Outcome of [`ShellSolver::solve`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShellReport {
+    /// Iterations (linear solves) performed.
+    pub iterations: usize,
+    /// Accepted iterations.
+    pub accepted: usize,
+    /// `energies[0]` = E at the start, `energies[t]` = E after iteration t (unchanged by a
+    /// rejected step, so the sequence is non-increasing).
+    pub energies: Vec<f64>,
+    /// Wall time of each iteration (s): damping, factorization, solve, trial energy and, if
+    /// accepted, re-linearisation.
+    pub iteration_seconds: Vec<f64>,
+    /// Wall time of the whole solve (s), including the first linearisation.
+    pub total_seconds: f64,
+    /// Final rms over all edges of `ℓ_e/ℓ*_e − 1` (unweighted).
+    pub length_rms: f64,
+    /// Final rms over interior edges of `wrap(φ_e − φ*_e)` (radians, unweighted).
+    pub angle_rms: f64,
+    /// Bend rows left out of the last Jacobian as near-degenerate (§6 item 4).
+    pub skipped_bend_rows: usize,
+    /// Final damping μ.
+    pub mu: f64,
+    /// Stopping reason.
+    pub stop: ShellStop,
+}
+
+/// Residuals and Jacobian rows of one edge: the stretch row on (x_i, x_j) and the bend row on
+/// (x_i, x_j, x_k, x_l) (zero on boundary edges and skipped diamonds).
+#[derive(Clone, Copy, Debug, Default)]
+struct EdgeRows {
+    r_len: f64,
+    r_ang: f64,
+    j_len: [V3; 2],
+    j_ang: [V3; 4],
+    has_ang: bool,
+    skipped: bool,
+}
+
+/// Levenberg–Marquardt solver for the discrete-shell energy over the vertices of one topology
+/// (module docs; algorithms.md §4.3–4.5). Construction builds the block pattern of JᵀJ, the
+/// scatter map and the symbolic Cholesky factorization once; [`ShellSolver::solve`] then only
+/// assembles values, refactors numerically and solves. All work buffers are allocated on the
+/// first use and reused (no allocation inside the iteration loop).
+pub struct ShellSolver {
+    topo: Topology,
+    /// 3|V|.
+    n: usize,
+    /// Lower-triangular scalar CSC pattern of JᵀJ (sorted rows; the diagonal is each column's
+    /// first entry).
+    pattern: SymbolicSparseColMat<usize>,
+    /// Scatter map: per edge and vertex pair (i,j),(i,k),(i,l),(j,k),(j,l),(k,l), the value
+    /// offsets of the stored (lower) 3×3 block's three columns (rows are consecutive). Pairs
+    /// absent for boundary edges hold `u32::MAX`.
+    slots: Vec<[[u32; 3]; 6]>,
+    factor: SpdFactor,
+    factor_scratch: Option<(bool, MemBuffer)>,
+    solve_scratch: MemBuffer,
+    // Work buffers.
+    rows: Vec<EdgeRows>,
+    jtj: Vec<f64>,
+    damped: Vec<f64>,
+    diag_scale: Vec<f64>,
+    grad: Vec<f64>,
+    delta: Vec<f64>,
+    x_trial: Vec<V3>,
+    chunk_sums: Vec<f64>,
+    skipped: usize,
+    linearized: bool,
+}
+
+impl std::fmt::Debug for ShellSolver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "ShellSolver {{ n: {}, nnz(JᵀJ lower): {}, {:?} }}",
+            self.n,
+            self.jtj.len(),
+            self.factor
+        )
+    }
+}
+
+/// The local vertex pairs of a diamond (i, j, k, l) in scatter-map order.
+const PAIRS: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
+
+impl ShellSolver {
+    /// Builds the fixed pattern of JᵀJ (3×3 blocks over edges ∪ diamond diagonals ∪ diagonal,
+    /// algorithms.md §4.3), the scatter map and the symbolic factorization (§4.4).
+    ///
+    /// Fails on a diamond whose two opposite vertices coincide (k = l).
+    pub fn new(topo: &Topology) -> Result<Self> {
+        let nv = topo.n_vertices;
+        let ne = topo.n_edges();
+        // Block pairs (lo, hi), lo < hi.
+        let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(2 * ne);
+        for e in 0..ne {
+            let [i, j] = topo.edges[e];
+            pairs.push((i.min(j), i.max(j)));
+            let [k, l] = topo.edge_opposite[e];
+            if l != NONE {
+                if k == l {
+                    return Err(MeshError::Topology(format!(
+                        "edge {e} {:?}: both faces have the same opposite vertex {k}",
+                        topo.edges[e]
+                    )));
+                }
+                pairs.push((k.min(l), k.max(l)));
+            }
+        }
+        pairs.sort_unstable();
+        pairs.dedup();
+        // Per block column b: neighbours hi > b, sorted (CSR-like offsets into `pairs`).
+        let mut nb_off = vec![0usize; nv + 1];
+        for &(lo, _) in &pairs {
+            nb_off[lo as usize + 1] += 1;
+        }
+        for v in 0..nv {
+            nb_off[v + 1] += nb_off[v];
+        }
+        let n = 3 * nv;
+        let mut col_ptr = vec![0usize; n + 1];
+        for b in 0..nv {
+            let deg = nb_off[b + 1] - nb_off[b];
+            for c in 0..3 {
+                col_ptr[3 * b + c + 1] = col_ptr[3 * b + c] + (3 - c) + 3 * deg;
+            }
+        }
+        let nnz = col_ptr[n];
+        if nnz >= u32::MAX as usize {
+            return Err(MeshError::Numerical(
+                "JᵀJ pattern too large for the scatter map".into(),
+            ));
+        }
+        let mut row_idx = Vec::with_capacity(nnz);
+        for b in 0..nv {
+            let nbs = &pairs[nb_off[b]..nb_off[b + 1]];
+            for c in 0..3 {
+                for r in c..3 {
+                    row_idx.push(3 * b + r);
+                }
+                for &(_, a) in nbs {
+                    for r in 0..3 {
+                        row_idx.push(3 * a as usize + r);
+                    }
+                }
+            }
+        }
+        let slot_of = |a: u32, b: u32| -> [u32; 3] {
+            let (lo, hi) = (a.min(b) as usize, a.max(b));
+            let nbs = &pairs[nb_off[lo]..nb_off[lo + 1]];
+            let q = nbs
+                .binary_search(&(lo as u32, hi))
+                .expect("pair in pattern");
+            let mut s = [0u32; 3];
+            for c in 0..3 {
+                s[c] = (col_ptr[3 * lo + c] + (3 - c) + 3 * q) as u32;
+            }
+            s
+        };
+        let slots: Vec<[[u32; 3]; 6]> = (0..ne)
+            .map(|e| {
+                let [i, j] = topo.edges[e];
+                let [k, l] = topo.edge_opposite[e];
+                let mut s = [[u32::MAX; 3]; 6];
+                if l == NONE {
+                    s[0] = slot_of(i, j);
+                } else {
+                    let v = [i, j, k, l];
+                    for (p, &(a, b)) in PAIRS.iter().enumerate() {
+                        s[p] = slot_of(v[a], v[b]);
+                    }
+                }
+                s
+            })
+            .collect();
+        let pattern = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
+        let factor = SpdFactor::symbolic_only(pattern.as_ref())?;
+        let solve_scratch = factor.make_scratch(1);
+        Ok(Self {
+            topo: topo.clone(),
+            n,
+            pattern,
+            slots,
+            factor,
+            factor_scratch: None,
+            solve_scratch,
+            rows: Vec::new(),
+            jtj: Vec::new(),
+            damped: Vec::new(),
+            diag_scale: Vec::new(),
+            grad: Vec::new(),
+            delta: Vec::new(),
+            x_trial: Vec::new(),
+            chunk_sums: Vec::new(),
+            skipped: 0,
+            linearized: false,
+        })
+    }
+
+    /// The topology the solver was built for.
+    pub fn topology(&self) -> &Topology {
+        &self.topo
+    }
+
+    /// Number of stored entries of the lower triangle of JᵀJ.
+    pub fn nnz(&self) -> usize {
+        self.pattern.row_idx().len()
+    }
+
+    fn ensure_buffers(&mut self) {
+        let ne = self.topo.n_edges();
+        let nnz = self.nnz();
+        if self.rows.len() != ne {
+            self.rows = vec![EdgeRows::default(); ne];
+            self.jtj = vec![0.0; nnz];
+            self.damped = vec![0.0; nnz];
+            self.diag_scale = vec![0.0; self.n];
+            self.grad = vec![0.0; self.n];
+            self.delta = vec![0.0; self.n];
+            self.x_trial = vec![[0.0; 3]; self.topo.n_vertices];
+            self.chunk_sums = vec![0.0; ne.div_ceil(EDGE_CHUNK)];
+        }
+    }
+
+    fn check_inputs(&self, targets: &ShellTargets, x: &[V3]) -> Result<()> {
+        check_positions(&self.topo, x, "shell solver start")?;
+        targets.validate(&self.topo)
+    }
+
+    /// The energy E(x) of the module docs (parallel over fixed edge chunks, so the sum is
+    /// deterministic).
+    pub fn energy(&mut self, targets: &ShellTargets, x: &[V3]) -> Result<f64> {
+        self.check_inputs(targets, x)?;
+        self.ensure_buffers();
+        Ok(energy_of(&self.topo, targets, x, &mut self.chunk_sums))
+    }
+
+    /// Evaluates the residuals and Jacobian rows at `x` and assembles `g = Jᵀr` and the lower
+    /// triangle of JᵀJ into the fixed pattern through the scatter map (algorithms.md §4.3–4.4);
+    /// returns E(x) = |r|². Near-degenerate bend rows (height < `degenerate_height·ℓ̄`) are left
+    /// out of J. Fails if the assembly produced a non-finite value.
+    pub fn linearize(
+        &mut self,
+        targets: &ShellTargets,
+        x: &[V3],
+        degenerate_height: f64,
+    ) -> Result<f64> {
+        self.check_inputs(targets, x)?;
+        self.ensure_buffers();
+        self.linearize_unchecked(targets, x, degenerate_height)
+    }
+
+    fn linearize_unchecked(
+        &mut self,
+        targets: &ShellTargets,
+        x: &[V3],
+        degenerate_height: f64,
+    ) -> Result<f64> {
+        let topo = &self.topo;
+        let h_min = degenerate_height * targets.mean_length();
+        self.rows
+            .par_chunks_mut(EDGE_CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                let base = c * EDGE_CHUNK;
+                for (off, row) in chunk.iter_mut().enumerate() {
+                    *row = edge_rows(topo, targets, x, base + off, h_min);
+                }
+            });
+        // Scatter (sequential: deterministic and cheap next to the factorization).
+        let col_ptr = self.pattern.col_ptr();
+        let vals = &mut self.jtj;
+        let grad = &mut self.grad;
+        vals.fill(0.0);
+        grad.fill(0.0);
+        let mut energy = 0.0;
+        let mut skipped = 0;
+        for (e, row) in self.rows.iter().enumerate() {
+            let [i, j] = topo.edges[e];
+            let sl = &self.slots[e];
+            energy += row.r_len * row.r_len;
+            let vl = [i as usize, j as usize];
+            for a in 0..2 {
+                add_diag(vals, col_ptr, vl[a], row.j_len[a]);
+                axpy(grad, vl[a], row.j_len[a], row.r_len);
+            }
+            add_off(vals, &sl[0], vl, 0, 1, &row.j_len);
+            skipped += row.skipped as usize;
+            if row.has_ang {
+                energy += row.r_ang * row.r_ang;
+                let [k, l] = topo.edge_opposite[e];
+                let v4 = [i as usize, j as usize, k as usize, l as usize];
+                for a in 0..4 {
+                    add_diag(vals, col_ptr, v4[a], row.j_ang[a]);
+                    axpy(grad, v4[a], row.j_ang[a], row.r_ang);
+                }
+                for (p, &(a, b)) in PAIRS.iter().enumerate() {
+                    add_off(vals, &sl[p], v4, a, b, &row.j_ang);
+                }
+            }
+        }
+        for h in &targets.handles {
+            let v = h.vertex as usize;
+            let d = sub(x[v], h.position);
+            energy += h.weight * dot(d, d);
+            for c in 0..3 {
+                vals[col_ptr[3 * v + c]] += h.weight;
+                grad[3 * v + c] += h.weight * d[c];
+            }
+        }
+        if !energy.is_finite()
+            || grad.iter().any(|g| !g.is_finite())
+            || vals.iter().any(|g| !g.is_finite())
+        {
+            return Err(MeshError::NonFinite(
+                "shell solver: non-finite value after assembling JᵀJ and Jᵀr".into(),
+            ));
+        }
+        // Marquardt scaling D = max(diag JᵀJ, 1e−8·max diag) (+ an absolute floor).
+        let mut max_diag = 0.0f64;
+        for c in 0..self.n {
+            max_diag = max_diag.max(vals[col_ptr[c]]);
+        }
+        let floor = 1e-8 * max_diag + f64::MIN_POSITIVE;
+        for c in 0..self.n {
+            self.diag_scale[c] = vals[col_ptr[c]].max(floor);
+        }
+        self.skipped = skipped;
+        self.linearized = true;
+        Ok(energy)
+    }
+
+    /// `g = Jᵀr` from the last [`ShellSolver::linearize`] (`∇E = 2g`), length 3|V|, vertex-major.
+    pub fn gradient(&self) -> &[f64] {
+        &self.grad
+    }
+
+    /// `out = JᵀJ·v` with the assembled matrix of the last linearisation (symmetric product
+    /// from the stored lower triangle).
+    pub fn normal_matrix_mul(&self, v: &[f64], out: &mut [f64]) {
+        assert!(v.len() == self.n && out.len() == self.n && self.linearized);
+        out.fill(0.0);
+        let cp = self.pattern.col_ptr();
+        let ri = self.pattern.row_idx();
+        for c in 0..self.n {
+            for p in cp[c]..cp[c + 1] {
+                let r = ri[p];
+                out[r] += self.jtj[p] * v[c];
+                if r != c {
+                    out[c] += self.jtj[p] * v[r];
+                }
+            }
+        }
+    }
+
+    /// Number of residuals: #E stretch rows, #E bend rows (zero on boundary edges), 3 per handle.
+    pub fn n_residuals(&self, targets: &ShellTargets) -> usize {
+        2 * self.topo.n_edges() + 3 * targets.handles.len()
+    }
+
+    /// The residual vector r(x) in the layout of [`ShellSolver::n_residuals`].
+    pub fn residuals_into(&self, targets: &ShellTargets, x: &[V3], out: &mut [f64]) {
+        let ne = self.topo.n_edges();
+        assert_eq!(out.len(), self.n_residuals(targets));
+        for e in 0..ne {
+            let (rl, ra) = edge_residuals(&self.topo, targets, x, e);
+            out[e] = rl;
+            out[ne + e] = ra;
+        }
+        for (h, hd) in targets.handles.iter().enumerate() {
+            let d = sub(x[hd.vertex as usize], hd.position);
+            for c in 0..3 {
+                out[2 * ne + 3 * h + c] = hd.weight.sqrt() * d[c];
+            }
+        }
+    }
+
+    /// `out = J·v` with the Jacobian rows of the last linearisation (matrix-free).
+    pub fn jacobian_mul(&self, targets: &ShellTargets, v: &[f64], out: &mut [f64]) {
+        assert!(self.linearized && v.len() == self.n);
+        let ne = self.topo.n_edges();
+        let at = |u: u32| {
+            [
+                v[3 * u as usize],
+                v[3 * u as usize + 1],
+                v[3 * u as usize + 2],
+            ]
+        };
+        for (e, row) in self.rows.iter().enumerate() {
+            let [i, j] = self.topo.edges[e];
+            out[e] = dot(row.j_len[0], at(i)) + dot(row.j_len[1], at(j));
+            out[ne + e] = if row.has_ang {
+                let [k, l] = self.topo.edge_opposite[e];
+                [i, j, k, l]
+                    .iter()
+                    .zip(&row.j_ang)
+                    .map(|(&u, g)| dot(*g, at(u)))
+                    .sum()
+            } else {
+                0.0
+            };
+        }
+        for (h, hd) in targets.handles.iter().enumerate() {
+            let w = hd.weight.sqrt();
+            let p = at(hd.vertex);
+            for c in 0..3 {
+                out[2 * ne + 3 * h + c] = w * p[c];
+            }
+        }
+    }
+
+    /// The damped matrix `JᵀJ + μD` of the last linearisation as an owned lower CSC matrix
+    /// (allocates; for tests and diagnostics).
+    pub fn damped_matrix(&self, mu: f64) -> SparseColMat<usize, f64> {
+        let mut vals = self.jtj.clone();
+        let cp = self.pattern.col_ptr();
+        for c in 0..self.n {
+            vals[cp[c]] += mu * self.diag_scale[c];
+        }
+        SparseColMat::new(self.pattern.clone(), vals)
+    }
+
+    /// Solves `(JᵀJ + μD) δ = −g` for the last linearisation by a numeric refactorization with
+    /// the symbolic analysis from [`ShellSolver::new`] (algorithms.md §4.4). `delta` has length
+    /// 3|V|. Fails if the damped matrix is not numerically positive definite.
+    pub fn step(&mut self, mu: f64, parallel: bool, delta: &mut [f64]) -> Result<()> {
+        assert!(self.linearized && delta.len() == self.n);
+        let cp = self.pattern.col_ptr();
+        self.damped.copy_from_slice(&self.jtj);
+        for c in 0..self.n {
+            self.damped[cp[c]] += mu * self.diag_scale[c];
+        }
+        let par = if parallel { Par::rayon(0) } else { Par::Seq };
+        if self.factor_scratch.as_ref().map(|s| s.0) != Some(parallel) {
+            let req = self.factor.refactor_scratch(par);
+            self.factor_scratch = Some((parallel, MemBuffer::new(req)));
+        }
+        let scratch = &mut self.factor_scratch.as_mut().expect("set above").1;
+        let a = SparseColMatRef::new(self.pattern.as_ref(), &self.damped);
+        self.factor.refactor_ref(a, par, scratch)?;
+        for (d, g) in delta.iter_mut().zip(&self.grad) {
+            *d = -g;
+        }
+        let n = self.n;
+        self.factor.solve_in_place(
+            MatMut::from_column_major_slice_mut(delta, n, 1),
+            &mut self.solve_scratch,
+        );
+        Ok(())
+    }
+
+    /// Minimises E from `x` (e.g. the output of `g`) by Levenberg–Marquardt (algorithms.md
+    /// §4.4–4.5): gain ratio `ρ = (E − E_new)/(δᵀ(μDδ − g))` (the decrease predicted by the
+    /// Gauss–Newton model), accept if ρ > 1e−3 with `μ ← μ·max(1/3, 1 − (2ρ − 1)³)`, `ν ← 2`,
+    /// else `μ ← μν`, `ν ← 2ν`. Stops on `E ≤ energy_tol`, a relative decrease below `rel_tol`
+    /// twice in a row, a small step, or the iteration cap. `x` holds the result (the best
+    /// accepted iterate).
+    pub fn solve(
+        &mut self,
+        targets: &ShellTargets,
+        x: &mut [V3],
+        opts: &ShellOptions,
+    ) -> Result<ShellReport> {
+        let t_start = Instant::now();
+        self.check_inputs(targets, x)?;
+        self.ensure_buffers();
+        let mut e = self.linearize_unchecked(targets, x, opts.degenerate_height)?;
+        let mut report = ShellReport {
+            iterations: 0,
+            accepted: 0,
+            energies: Vec::with_capacity(opts.max_iterations + 1),
+            iteration_seconds: Vec::with_capacity(opts.max_iterations),
+            total_seconds: 0.0,
+            length_rms: 0.0,
+            angle_rms: 0.0,
+            skipped_bend_rows: 0,
+            mu: opts.mu_init,
+            stop: ShellStop::MaxIterations,
+        };
+        report.energies.push(e);
+        let mut mu = opts.mu_init.max(MU_MIN);
+        let mut nu = 2.0;
+        let mut small = 0;
+        let mut delta = std::mem::take(&mut self.delta);
+        let mut x_trial = std::mem::take(&mut self.x_trial);
+        let result = (|| -> Result<()> {
+            if e <= opts.energy_tol {
+                report.stop = ShellStop::Converged;
+                return Ok(());
+            }
+            while report.iterations < opts.max_iterations {
+                let t_it = Instant::now();
+                report.iterations += 1;
+                let accepted = match self.step(mu, opts.parallel_factor, &mut delta) {
+                    Err(MeshError::Numerical(_)) => None,
+                    Err(err) => return Err(err),
+                    Ok(()) => {
+                        let step_inf = delta.iter().fold(0.0f64, |m, d| m.max(d.abs()));
+                        let x_inf = x.iter().flatten().fold(0.0f64, |m, c| m.max(c.abs()));
+                        if step_inf < opts.step_tol * (x_inf + opts.step_tol) {
+                            report.iteration_seconds.push(t_it.elapsed().as_secs_f64());
+                            report.energies.push(e);
+                            report.stop = ShellStop::SmallStep;
+                            return Ok(());
+                        }
+                        for (v, xt) in x_trial.iter_mut().enumerate() {
+                            for c in 0..3 {
+                                xt[c] = x[v][c] + delta[3 * v + c];
+                            }
+                        }
+                        let e_new = energy_of(&self.topo, targets, &x_trial, &mut self.chunk_sums);
+                        let mut pred = 0.0;
+                        for c in 0..self.n {
+                            pred += delta[c] * (mu * self.diag_scale[c] * delta[c] - self.grad[c]);
+                        }
+                        let rho = (e - e_new) / pred;
+                        if e_new.is_finite() && pred > 0.0 && rho > 1e-3 {
+                            Some((e_new, rho))
+                        } else {
+                            None
+                        }
+                    }
+                };
+                match accepted {
+                    Some((e_new, rho)) => {
+                        x.copy_from_slice(&x_trial);
+                        let rel = (e - e_new) / e;
+                        e = self.linearize_unchecked(targets, x, opts.degenerate_height)?;
+                        report.accepted += 1;
+                        mu = (mu * (1.0 / 3.0f64).max(1.0 - (2.0 * rho - 1.0).powi(3))).max(MU_MIN);
+                        nu = 2.0;
+                        small = if rel < opts.rel_tol { small + 1 } else { 0 };
+                    }
+                    None => {
+                        mu *= nu;
+                        nu *= 2.0;
+                    }
+                }
+                report.iteration_seconds.push(t_it.elapsed().as_secs_f64());
+                report.energies.push(e);
+                if e <= opts.energy_tol {
+                    report.stop = ShellStop::Converged;
+                    return Ok(());
+                }
+                if small >= 2 {
+                    report.stop = ShellStop::SmallDecrease;
+                    return Ok(());
+                }
+                if mu.is_nan() || mu > MU_MAX {
+                    report.stop = ShellStop::DampingOverflow;
+                    return Ok(());
+                }
+            }
+            Ok(())
+        })();
+        self.delta = delta;
+        self.x_trial = x_trial;
+        result?;
+        report.mu = mu;
+        report.skipped_bend_rows = self.skipped;
+        let (lr, ar) = residual_rms(&self.topo, targets, x);
+        report.length_rms = lr;
+        report.angle_rms = ar;
+        report.total_seconds = t_start.elapsed().as_secs_f64();
+        Ok(report)
+    }
+}
+
+/// Unweighted rms of `ℓ_e/ℓ*_e − 1` over all edges and of `wrap(φ_e − φ*_e)` over interior
+/// edges of `x`.
+pub fn residual_rms(topo: &Topology, targets: &ShellTargets, x: &[V3]) -> (f64, f64) {
+    let (mut sl, mut sa, mut na) = (0.0, 0.0, 0usize);
+    for e in 0..topo.n_edges() {
+        let [i, j] = topo.edges[e];
+        let (xi, xj) = (x[i as usize], x[j as usize]);
+        let rl = norm(sub(xj, xi)) / targets.lengths[e] - 1.0;
+        sl += rl * rl;
+        let [k, l] = topo.edge_opposite[e];
+        if l != NONE {
+            let phi = dihedral_angle(xi, xj, x[k as usize], x[l as usize]);
+            let ra = wrap_angle(phi - targets.angles[e]);
+            sa += ra * ra;
+            na += 1;
+        }
+    }
+    (
+        (sl / topo.n_edges().max(1) as f64).sqrt(),
+        (sa / na.max(1) as f64).sqrt(),
+    )
+}
+
+/// Convenience (algorithms.md §4): refines `x` (typically `g`'s output for the same RLA) toward
+/// the targets `ℓ* = ℓ_r(1 + RL)`, `φ* = φ_r + RA` with the default weights for `c_b`, building
+/// a one-off [`ShellSolver`]. For repeated solves on one topology keep a solver instead.
+pub fn refine(
+    topo: &Topology,
+    rest: &RestGeometry,
+    rla: &Rla,
+    x: &mut [V3],
+    c_b: f64,
+    opts: &ShellOptions,
+) -> Result<ShellReport> {
+    let targets = ShellTargets::from_rla(topo, rest, rla, x, c_b)?;
+    ShellSolver::new(topo)?.solve(&targets, x, opts)
+}
+
+/// Stretch and bend residuals of edge `e` (bend 0 on boundary edges).
+#[inline]
+fn edge_residuals(topo: &Topology, t: &ShellTargets, x: &[V3], e: usize) -> (f64, f64) {
+    let [i, j] = topo.edges[e];
+    let (xi, xj) = (x[i as usize], x[j as usize]);
+    let rl = t.length_weights[e].sqrt() * (norm(sub(xj, xi)) / t.lengths[e] - 1.0);
+    let [k, l] = topo.edge_opposite[e];
+    let ra = if l == NONE || t.angle_weights[e] == 0.0 {
+        0.0
+    } else {
+        let phi = dihedral_angle(xi, xj, x[k as usize], x[l as usize]);
+        t.angle_weights[e].sqrt() * wrap_angle(phi - t.angles[e])
+    };
+    (rl, ra)
+}
+
+/// E(x), summed per fixed chunk of edges in parallel, then sequentially.
+fn energy_of(topo: &Topology, t: &ShellTargets, x: &[V3], chunk_sums: &mut [f64]) -> f64 {
+    let ne = topo.n_edges();
+    chunk_sums.par_iter_mut().enumerate().for_each(|(c, s)| {
+        let mut acc = 0.0;
+        for e in c * EDGE_CHUNK..((c + 1) * EDGE_CHUNK).min(ne) {
+            let (rl, ra) = edge_residuals(topo, t, x, e);
+            acc += rl * rl + ra * ra;
+        }
+        *s = acc;
+    });
+    let mut energy: f64 = chunk_sums.iter().sum();
+    for h in &t.handles {
+        let d = sub(x[h.vertex as usize], h.position);
+        energy += h.weight * dot(d, d);
+    }
+    energy
+}
+
+/// Residuals and Jacobian rows of edge `e` (§1.2 hinge gradients, scaled by the weights).
+#[inline]
+fn edge_rows(topo: &Topology, t: &ShellTargets, x: &[V3], e: usize, h_min: f64) -> EdgeRows {
+    let [i, j] = topo.edges[e];
+    let (xi, xj) = (x[i as usize], x[j as usize]);
+    let d = sub(xj, xi);
+    let len = norm(d);
+    let wl = t.length_weights[e].sqrt();
+    let mut row = EdgeRows {
+        r_len: wl * (len / t.lengths[e] - 1.0),
+        ..Default::default()
+    };
+    if len > h_min {
+        let u = scale(d, wl / (len * t.lengths[e]));
+        row.j_len = [scale(u, -1.0), u];
+    }
+    let [k, l] = topo.edge_opposite[e];
+    if l == NONE || t.angle_weights[e] == 0.0 {
+        return row;
+    }
+    let (xk, xl) = (x[k as usize], x[l as usize]);
+    let wa = t.angle_weights[e].sqrt();
+    let phi = dihedral_angle(xi, xj, xk, xl);
+    row.r_ang = wa * wrap_angle(phi - t.angles[e]);
+    row.has_ang = true;
+    // Heights of k and l over the edge: |N|/ℓ.
+    let hk = norm(cross(d, sub(xk, xi))) / len;
+    let hl = norm(cross(d, sub(xl, xi))) / len;
+    if !(len > h_min && hk > h_min && hl > h_min) {
+        row.skipped = true;
+        return row;
+    }
+    let g = dihedral_gradient(xi, xj, xk, xl);
+    row.j_ang = [
+        scale(g[0], wa),
+        scale(g[1], wa),
+        scale(g[2], wa),
+        scale(g[3], wa),
+    ];
+    row
+}
+
+/// Adds the diagonal block `g gᵀ` of vertex `a` (lower triangle; column 3a+c starts with row
+/// 3a+c).
+#[inline]
+fn add_diag(vals: &mut [f64], col_ptr: &[usize], a: usize, g: V3) {
+    for c in 0..3 {
+        let base = col_ptr[3 * a + c] - c;
+        for r in c..3 {
+            vals[base + r] += g[r] * g[c];
+        }
+    }
+}
+
+/// Adds the off-diagonal block of the local pair (p, q) of a row with gradients `g` on vertices
+/// `v`: the stored block is (rows of the larger vertex, columns of the smaller).
+#[inline]
+fn add_off<const N: usize>(
+    vals: &mut [f64],
+    slot: &[u32; 3],
+    v: [usize; N],
+    p: usize,
+    q: usize,
+    g: &[V3; N],
+) {
+    let (hi, lo) = if v[p] > v[q] { (p, q) } else { (q, p) };
+    for c in 0..3 {
+        let s = slot[c] as usize;
+        let gc = g[lo][c];
+        for r in 0..3 {
+            vals[s + r] += g[hi][r] * gc;
+        }
+    }
+}
+
+/// `grad[3a..3a+3] += s·g`.
+#[inline]
+fn axpy(grad: &mut [f64], a: usize, g: V3, s: f64) {
+    for c in 0..3 {
+        grad[3 * a + c] += s * g[c];
+    }
+}

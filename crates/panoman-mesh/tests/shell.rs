@@ -1,0 +1,358 @@
+//! Tests of the discrete-shell Levenberg–Marquardt solver (algorithms.md §4.3–4.5).
+#![allow(clippy::needless_range_loop)]
+
+mod common;
+
+use common::{Rng, deform, grid, icosphere};
+use panoman_mesh::align::aligned_error;
+use panoman_mesh::geom::{V3, norm, sub};
+use panoman_mesh::rla::{dihedral_angles, edge_lengths};
+use panoman_mesh::shell::{Handle, ShellOptions, ShellSolver, ShellStop, ShellTargets};
+use panoman_mesh::sparse::SpdFactor;
+use panoman_mesh::{Reconstructor, Topology};
+
+fn deformed_sphere(subdiv: usize) -> (Vec<V3>, Topology) {
+    let (v, f) = icosphere(subdiv);
+    let v: Vec<V3> = v.into_iter().map(deform).collect();
+    let topo = Topology::build(v.len(), &f).unwrap();
+    (v, topo)
+}
+
+fn mean_edge(topo: &Topology, x: &[V3]) -> f64 {
+    let l = edge_lengths(topo, x);
+    l.iter().sum::<f64>() / l.len() as f64
+}
+
+fn bbox_diag(x: &[V3]) -> f64 {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in x {
+        for c in 0..3 {
+            lo[c] = lo[c].min(p[c]);
+            hi[c] = hi[c].max(p[c]);
+        }
+    }
+    norm(sub(hi, lo))
+}
+
+fn perturb(x: &[V3], sigma: f64, seed: u64) -> Vec<V3> {
+    let mut rng = Rng(seed);
+    x.iter()
+        .map(|p| {
+            let n = rng.vec3();
+            [
+                p[0] + sigma * n[0],
+                p[1] + sigma * n[1],
+                p[2] + sigma * n[2],
+            ]
+        })
+        .collect()
+}
+
+fn rel_err(a: &[f64], b: &[f64]) -> f64 {
+    let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum();
+    let den: f64 = b.iter().map(|y| y * y).sum();
+    (num / den).sqrt()
+}
+
+#[test]
+fn own_targets_give_zero_energy_and_no_iterations() {
+    for (x, topo) in [deformed_sphere(2), {
+        let (v, f) = grid(8);
+        let t = Topology::build(v.len(), &f).unwrap();
+        (v, t)
+    }] {
+        let targets = ShellTargets::from_positions(&topo, &x, 1.0).unwrap();
+        let mut solver = ShellSolver::new(&topo).unwrap();
+        let mut y = x.clone();
+        let rep = solver
+            .solve(&targets, &mut y, &ShellOptions::default())
+            .unwrap();
+        assert_eq!(rep.energies[0], 0.0);
+        assert_eq!(rep.iterations, 0);
+        assert_eq!(rep.stop, ShellStop::Converged);
+        assert_eq!(y, x);
+        assert_eq!(rep.length_rms, 0.0);
+        assert_eq!(rep.angle_rms, 0.0);
+    }
+}
+
+#[test]
+fn recovers_mesh_from_perturbed_start() {
+    for (subdiv, seed) in [(2usize, 1u64), (3, 2)] {
+        let (truth, topo) = deformed_sphere(subdiv);
+        let targets = ShellTargets::from_positions(&topo, &truth, 1.0).unwrap();
+        let sigma = 0.05 * mean_edge(&topo, &truth);
+        let mut x = perturb(&truth, sigma, seed);
+        let (start_max, _) = aligned_error(&x, &truth);
+        let mut solver = ShellSolver::new(&topo).unwrap();
+        let opts = ShellOptions {
+            max_iterations: 50,
+            ..Default::default()
+        };
+        let rep = solver.solve(&targets, &mut x, &opts).unwrap();
+        let (max, mean) = aligned_error(&x, &truth);
+        let diag = bbox_diag(&truth);
+        println!(
+            "subdiv {subdiv}: {} iterations ({} accepted, stop {:?}), E {:.3e} → {:.3e}, \
+             error max {:.2e} (start {:.2e}) mean {:.2e} × bbox diag, {:.1} ms",
+            rep.iterations,
+            rep.accepted,
+            rep.stop,
+            rep.energies[0],
+            rep.energies.last().unwrap(),
+            max / diag,
+            start_max / diag,
+            mean / diag,
+            rep.total_seconds * 1e3
+        );
+        assert!(max < 1e-6 * diag, "max error {max:e} vs diag {diag}");
+        for w in rep.energies.windows(2) {
+            assert!(w[1] <= w[0], "energy increased: {:?}", rep.energies);
+        }
+        assert!(rep.length_rms < 1e-8 && rep.angle_rms < 1e-8);
+    }
+}
+
+/// Targets with a generic mismatch (other mesh's lengths/angles), plus handles.
+fn generic_problem(x: &[V3], topo: &Topology, seed: u64) -> (ShellTargets, Vec<V3>) {
+    let ml = mean_edge(topo, x);
+    let other = perturb(x, 0.1 * ml, seed);
+    let mut t = ShellTargets::new(
+        topo,
+        edge_lengths(topo, &other),
+        dihedral_angles(topo, &other),
+        x,
+        0.7,
+    )
+    .unwrap();
+    let mut rng = Rng(seed + 100);
+    for w in t.length_weights.iter_mut() {
+        *w = rng.range(0.5, 2.0);
+    }
+    t.handles = vec![
+        Handle {
+            vertex: 3,
+            position: [0.1, 0.2, 0.3],
+            weight: 2.0 / (ml * ml),
+        },
+        Handle {
+            vertex: 7,
+            position: x[7],
+            weight: 0.5 / (ml * ml),
+        },
+    ];
+    let start = perturb(x, 0.03 * ml, seed + 7);
+    (t, start)
+}
+
+#[test]
+fn gradient_and_gauss_newton_matrix_match_finite_differences() {
+    let meshes = [deformed_sphere(2), {
+        let (v, f) = grid(6);
+        let t = Topology::build(v.len(), &f).unwrap();
+        (v, t)
+    }];
+    for (x0, topo) in meshes {
+        let (targets, x) = generic_problem(&x0, &topo, 5);
+        let mut solver = ShellSolver::new(&topo).unwrap();
+        let e0 = solver.linearize(&targets, &x, 1e-6).unwrap();
+        assert!(e0 > 0.0);
+        let n = 3 * x.len();
+        // ∇E = 2 Jᵀr against central differences of E.
+        let h = 1e-6 * mean_edge(&topo, &x);
+        let mut fd = vec![0.0; n];
+        let mut y = x.clone();
+        for c in 0..n {
+            let (v, d) = (c / 3, c % 3);
+            y[v][d] = x[v][d] + h;
+            let ep = solver.energy(&targets, &y).unwrap();
+            y[v][d] = x[v][d] - h;
+            let em = solver.energy(&targets, &y).unwrap();
+            y[v][d] = x[v][d];
+            fd[c] = (ep - em) / (2.0 * h);
+        }
+        let g2: Vec<f64> = solver.gradient().iter().map(|g| 2.0 * g).collect();
+        let eg = rel_err(&g2, &fd);
+        println!("gradient relative error {eg:.2e}");
+        assert!(eg < 1e-6, "gradient relative error {eg:e}");
+
+        // J·v against the central difference of the residual vector.
+        let mut rng = Rng(11);
+        let v: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
+        let m = solver.n_residuals(&targets);
+        let (mut rp, mut rm, mut jv) = (vec![0.0; m], vec![0.0; m], vec![0.0; m]);
+        let t = 1e-7 * mean_edge(&topo, &x);
+        let shifted = |s: f64| -> Vec<V3> {
+            x.iter()
+                .enumerate()
+                .map(|(i, p)| {
+                    [
+                        p[0] + s * v[3 * i],
+                        p[1] + s * v[3 * i + 1],
+                        p[2] + s * v[3 * i + 2],
+                    ]
+                })
+                .collect()
+        };
+        solver.residuals_into(&targets, &shifted(t), &mut rp);
+        solver.residuals_into(&targets, &shifted(-t), &mut rm);
+        let fdj: Vec<f64> = rp
+            .iter()
+            .zip(&rm)
+            .map(|(a, b)| (a - b) / (2.0 * t))
+            .collect();
+        solver.jacobian_mul(&targets, &v, &mut jv);
+        let ej = rel_err(&jv, &fdj);
+        println!("J·v relative error {ej:.2e}");
+        assert!(ej < 1e-6, "J·v relative error {ej:e}");
+
+        // The scatter-assembled JᵀJ against the matrix-free rows: vᵀ(JᵀJ)v = |Jv|², and
+        // (JᵀJ)·e_c column sums against Jᵀ(J e_c) for a few columns.
+        let mut hv = vec![0.0; n];
+        solver.normal_matrix_mul(&v, &mut hv);
+        let vhv: f64 = v.iter().zip(&hv).map(|(a, b)| a * b).sum();
+        let jv2: f64 = jv.iter().map(|a| a * a).sum();
+        assert!(
+            (vhv - jv2).abs() < 1e-12 * jv2,
+            "vᵀJᵀJv {vhv} vs |Jv|² {jv2}"
+        );
+        let mut rng = Rng(12);
+        for _ in 0..20 {
+            let w: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
+            let mut jw = vec![0.0; m];
+            solver.jacobian_mul(&targets, &w, &mut jw);
+            let whv: f64 = w.iter().zip(&hv).map(|(a, b)| a * b).sum();
+            let jwjv: f64 = jw.iter().zip(&jv).map(|(a, b)| a * b).sum();
+            assert!(
+                (whv - jwjv).abs() < 1e-11 * (jv2 + jw.iter().map(|a| a * a).sum::<f64>()),
+                "wᵀJᵀJv {whv} vs (Jw)·(Jv) {jwjv}"
+            );
+        }
+
+        // At a zero-residual point the directional derivative of g = Jᵀr is exactly JᵀJ·v.
+        let own = ShellTargets::from_positions(&topo, &x0, 1.0).unwrap();
+        solver.linearize(&own, &x0, 1e-6).unwrap();
+        solver.normal_matrix_mul(&v, &mut hv);
+        let t = 1e-6 * mean_edge(&topo, &x0);
+        let xs: Vec<V3> = x0
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                [
+                    p[0] + t * v[3 * i],
+                    p[1] + t * v[3 * i + 1],
+                    p[2] + t * v[3 * i + 2],
+                ]
+            })
+            .collect();
+        solver.linearize(&own, &xs, 1e-6).unwrap();
+        let gp = solver.gradient().to_vec();
+        let xs: Vec<V3> = x0
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                [
+                    p[0] - t * v[3 * i],
+                    p[1] - t * v[3 * i + 1],
+                    p[2] - t * v[3 * i + 2],
+                ]
+            })
+            .collect();
+        solver.linearize(&own, &xs, 1e-6).unwrap();
+        let fdh: Vec<f64> = gp
+            .iter()
+            .zip(solver.gradient())
+            .map(|(a, b)| (a - b) / (2.0 * t))
+            .collect();
+        let eh = rel_err(&hv, &fdh);
+        println!("JᵀJ·v vs d(Jᵀr)/dv at zero residual: relative error {eh:.2e}");
+        assert!(eh < 1e-6, "JᵀJ·v relative error {eh:e}");
+    }
+}
+
+#[test]
+fn symbolic_reuse_matches_fresh_factorization() {
+    let (x0, topo) = deformed_sphere(2);
+    let (targets, x1) = generic_problem(&x0, &topo, 9);
+    let x2 = perturb(&x1, 0.02 * mean_edge(&topo, &x1), 33);
+    let mut solver = ShellSolver::new(&topo).unwrap();
+    let n = 3 * x1.len();
+    let mut d = vec![0.0; n];
+    solver.linearize(&targets, &x1, 1e-6).unwrap();
+    solver.step(1e-2, false, &mut d).unwrap();
+    for (mu, par) in [(1e-3, false), (1e-5, true)] {
+        solver.linearize(&targets, &x2, 1e-6).unwrap();
+        solver.step(mu, par, &mut d).unwrap();
+        let fresh = SpdFactor::new(&solver.damped_matrix(mu)).unwrap();
+        let mut rhs = faer::Mat::from_fn(n, 1, |i, _| -solver.gradient()[i]);
+        let mut scratch = fresh.make_scratch(1);
+        fresh.solve_in_place(rhs.as_mut(), &mut scratch);
+        let r: Vec<f64> = (0..n).map(|i| rhs[(i, 0)]).collect();
+        let e = rel_err(&d, &r);
+        println!("μ {mu:e}: reused vs fresh relative difference {e:.2e}");
+        assert!(e < 1e-10, "reused vs fresh: {e:e}");
+    }
+}
+
+#[test]
+fn noisy_angles_exact_lengths_stay_nearly_isometric() {
+    let (truth, topo) = deformed_sphere(3);
+    let lengths = edge_lengths(&topo, &truth);
+    let mut angles = dihedral_angles(&topo, &truth);
+    let mut rng = Rng(77);
+    let noise = 0.03;
+    for a in angles.iter_mut() {
+        *a += noise * rng.normal();
+    }
+    // g from the noisy targets, gauged on the truth.
+    let rec = Reconstructor::new(&topo).unwrap();
+    let mut ws = rec.workspace();
+    let gauge = rec.gauge_from(&truth).unwrap();
+    let mut x = vec![[0.0; 3]; truth.len()];
+    rec.reconstruct(&mut ws, &lengths, &angles, &gauge, &mut x)
+        .unwrap();
+    let x_g = x.clone();
+    let (g_err, _) = aligned_error(&x_g, &truth);
+    let diag = bbox_diag(&truth);
+    // c_B = 1 lets bending trade stretch for angle fit; small c_B lets the (exact) lengths,
+    // which nearly determine a closed surface, dominate.
+    let mut results = Vec::new();
+    for c_b in [1.0, 0.3, 0.1] {
+        let targets = ShellTargets::new(&topo, lengths.clone(), angles.clone(), &x_g, c_b).unwrap();
+        let (g_len, g_ang) = panoman_mesh::shell::residual_rms(&topo, &targets, &x_g);
+        let mut x = x_g.clone();
+        let mut solver = ShellSolver::new(&topo).unwrap();
+        let rep = solver
+            .solve(&targets, &mut x, &ShellOptions::default())
+            .unwrap();
+        let (s_err, s_mean) = aligned_error(&x, &truth);
+        println!(
+            "c_B {c_b}: g: length rms {g_len:.2e}, angle rms {g_ang:.3}, max err {:.2e}; shell: \
+             length rms {:.2e}, angle rms {:.3}, max err {:.2e} mean {:.2e} (× diag), {} \
+             iterations ({:?}), E {:.3e} → {:.3e}",
+            g_err / diag,
+            rep.length_rms,
+            rep.angle_rms,
+            s_err / diag,
+            s_mean / diag,
+            rep.iterations,
+            rep.stop,
+            rep.energies[0],
+            rep.energies.last().unwrap()
+        );
+        assert!(x.iter().flatten().all(|c| c.is_finite()));
+        for w in rep.energies.windows(2) {
+            assert!(w[1] <= w[0]);
+        }
+        results.push((c_b, g_len, rep.length_rms, rep.angle_rms, s_err));
+    }
+    let (_, g_len, len_rms, ang_rms, s_err) = results[2];
+    assert!(
+        len_rms < 0.2 * g_len,
+        "c_B 0.1: length rms {len_rms} vs g {g_len}"
+    );
+    assert!(len_rms < 0.05 * noise, "c_B 0.1: length rms {len_rms}");
+    assert!(ang_rms < 1.5 * noise, "c_B 0.1: angle rms {ang_rms}");
+    assert!(s_err < g_err, "c_B 0.1: shell error {s_err} vs g {g_err}");
+}
