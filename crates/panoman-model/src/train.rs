@@ -108,7 +108,7 @@ impl TrainConfig {
                 correction_epochs: 200,
                 motion_hidden: vec![400, 600],
                 motion_epochs: 300,
-                eval_rows_per_kind: 100,
+                eval_rows_per_kind: 40,
                 seed: 0,
             }),
             other => Err(ModelError::Invalid(format!(
@@ -630,7 +630,7 @@ pub fn evaluate(
     let curve_rows = if cfg.eval_rows_per_kind == 0 {
         0
     } else {
-        cfg.eval_rows_per_kind.min(40)
+        cfg.eval_rows_per_kind.min(12)
     };
     let curves = component_curves(model, ds, regions, curve_rows)?;
     let report = serde_json::json!({

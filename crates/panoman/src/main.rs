@@ -38,6 +38,8 @@ enum Command {
     Render(commands::render::RenderArgs),
     /// Train a PanoMan model (shape PCA, sparse localized RL/RA components, MLPs) on a dataset.
     Train(commands::train::TrainArgs),
+    /// Draw a model's sparse localized components on the mesh (the paper's Fig. 8).
+    Components(commands::components::ComponentsArgs),
     /// Pose a model: parameters (α, β) → mesh.
     Pose(commands::pose::PoseArgs),
     /// Encode a registered mesh into model parameters (α, β): the inverse of `pose`.
@@ -65,6 +67,7 @@ fn main() -> ExitCode {
         Command::Demo(a) => commands::demo::run(a),
         Command::Train(a) => commands::train::run(a),
         Command::Pose(a) => commands::pose::run(a),
+        Command::Components(a) => commands::components::run(a),
         Command::Encode(a) => commands::encode::run(a),
         Command::Generate(a) => commands::generate::run(a),
         Command::Render(a) => commands::render::run(a),

@@ -162,6 +162,23 @@ fn small_model_trains_poses_and_encodes() {
     ]));
     let y = io::read_mesh(&dir.join("y.obj")).unwrap();
     assert_eq!(y.n_vertices(), model.n_vertices);
+    // Components drawn on the mesh (Fig. 8): a PNG for a body and a face block.
+    for block in ["body_a", "face_l"] {
+        let png = dir.join(format!("{block}.png"));
+        let out = ok(panoman(&[
+            "components",
+            "--model",
+            m,
+            "--block",
+            block,
+            "--count",
+            "3",
+            "--out",
+            png.to_str().unwrap(),
+        ]));
+        assert!(out.contains("support"), "{out}");
+        assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+    }
 }
 
 #[test]

@@ -2,6 +2,7 @@
 
 pub mod assets;
 pub mod bench;
+pub mod components;
 pub mod demo;
 pub mod encode;
 pub mod generate;
