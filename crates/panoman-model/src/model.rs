@@ -8,7 +8,12 @@
 //! ```
 //!
 //! β has six blocks, in this order: `body_l, face_l, hands_l, body_a, face_a, hands_a`
-//! (`[β_LB, β_LF, β_LH, β_AB, β_AF, β_AH]`). Each block lives on a set of edges (its part's
+//! (`[β_LB, β_LF, β_LH, β_AB, β_AF, β_AH]`). **Component 0 of every block is the part's mean
+//! X̄_part** (dense on the part's columns) with a free coefficient, 1 on the part's own training
+//! rows; the stored block mean is 0. With the paper's fixed additive means, a row of another
+//! kind (a neutral face in a body pose, a body at rest in an expression) cannot cancel the
+//! other parts' mean offsets; with a coefficient it can. The MLPs see and predict β without
+//! these two mean coefficients. Each block lives on a set of edges (its part's
 //! columns, see `panoman_human::regions`) with a per-column mean and sparse components; a
 //! block's mean and components are zero outside its columns, and the parts' contributions add
 //! up on shared (margin) edges. RA uses the internal sign `RA = wrap(φ − φ_rest)` (the paper's
@@ -86,7 +91,8 @@ impl Block {
 /// residual on the `body_a` columns.
 #[derive(Clone, Debug)]
 pub struct Correction {
-    /// The network: (K_LB + K_AB) → hidden → rank(head).
+    /// The network: (K_LB + K_AB − 2) → hidden → rank(head) (inputs without the two mean
+    /// coefficients, see the module docs).
     pub mlp: Mlp,
     /// The PCA head decoding codes into residuals.
     pub head: PcaHead,
@@ -97,7 +103,8 @@ pub struct Correction {
 /// from the dataset's Euler angles (radians, R = Rz·Ry·Rx).
 #[derive(Clone, Debug)]
 pub struct Motion {
-    /// The network: 6·|bones| → 400 → 600 → (K_LB + K_AB).
+    /// The network: 6·|bones| → 400 → 600 → (K_LB + K_AB − 2) (β_B without its mean
+    /// coefficients, which are 1 for body poses).
     pub mlp: Mlp,
     /// Bones whose rotations form the input, in order.
     pub theta_bones: Vec<String>,
@@ -350,22 +357,30 @@ impl PanoManModel {
         Some(c.head.decode(&codes))
     }
 
-    /// `(β_LB, β_AB)` concatenated, as f32 (the MLPs' body coefficient vector).
+    /// `(β_LB, β_AB)` without their mean coefficients (component 0 of each block),
+    /// concatenated as f32: the MLPs' body coefficient vector.
     pub fn body_beta_f32(&self, params: &Params) -> Vec<f32> {
         let bl = &self.blocks[0];
         let ba = &self.blocks[3];
         let mut x: Vec<f32> = params
             .beta_of(&bl.name, bl.n_components())
             .iter()
+            .skip(1)
             .map(|&v| v as f32)
             .collect();
         x.extend(
             params
                 .beta_of(&ba.name, ba.n_components())
                 .iter()
+                .skip(1)
                 .map(|&v| v as f32),
         );
         x
+    }
+
+    /// Number of entries of [`PanoManModel::body_beta_f32`]: `K_LB + K_AB − 2`.
+    pub fn n_body_mlp(&self) -> usize {
+        (self.blocks[0].n_components() + self.blocks[3].n_components()).saturating_sub(2)
     }
 
     /// Saves the model as one safetensors file (atomic write). Tensors: `template.faces`,
@@ -654,7 +669,7 @@ impl PanoManModel {
                     .collect()
             })
             .collect();
-        let k_body = blocks[0].n_components() + blocks[3].n_components();
+        let k_body = (blocks[0].n_components() + blocks[3].n_components()).saturating_sub(2);
         let correction = if h.correction {
             let mlp = Mlp::read(s, "correction.mlp")?;
             let head = PcaHead::read(s, "correction.head")?;

@@ -385,10 +385,21 @@ pub fn train(
                 .total_cmp(&dec.component_energy[a])
                 .then(a.cmp(&c))
         });
+        // Component 0 is the part's mean X̄ with a free coefficient (1 on the part's own rows):
+        // a row of another kind (e.g. a neutral face in a body pose) can switch it off, which a
+        // fixed additive mean cannot; the stored block mean is then 0.
         let mut row_ptr = vec![0usize];
-        let mut col_idx = Vec::new();
-        let mut values = Vec::new();
-        let mut beta_range = Vec::with_capacity(k);
+        let mut col_idx: Vec<u32> = Vec::new();
+        let mut values: Vec<f32> = Vec::new();
+        for (j, &m) in dec.mean.iter().enumerate() {
+            if m != 0.0 {
+                col_idx.push(j as u32);
+                values.push(m);
+            }
+        }
+        row_ptr.push(col_idx.len());
+        let mut beta_range = Vec::with_capacity(k + 1);
+        beta_range.push([-0.1f32, 1.1]);
         for &kk in &order {
             let (ci, vi) = dec.components.row(kk);
             col_idx.extend_from_slice(ci);
@@ -406,7 +417,7 @@ pub fn train(
         blocks.push(Block {
             name: BLOCK_NAMES[b].into(),
             columns: cols[b % 3].clone(),
-            mean: dec.mean.clone(),
+            mean: vec![0.0; dec.n_columns()],
             components: SparseRows {
                 n_cols: dec.n_columns(),
                 row_ptr,
@@ -420,14 +431,25 @@ pub fn train(
     // Training β of the body rows (sorted order): [β_LB | β_AB].
     let n_body = rlas[0].len();
     let (kl, ka) = (blocks[0].n_components(), blocks[3].n_components());
+    // Column 0 of each block is the mean's coefficient (1 on the body rows).
     let beta_b = Mat::<f32>::from_fn(n_body, kl + ka, |i, j| {
-        if j < kl {
-            decs[0].weights[(i, orders[0][j])]
+        if j == 0 || j == kl {
+            1.0
+        } else if j < kl {
+            decs[0].weights[(i, orders[0][j - 1])]
         } else {
-            decs[3].weights[(i, orders[3][j - kl])]
+            decs[3].weights[(i, orders[3][j - kl - 1])]
         }
     });
 
+    // The MLPs' body coefficients: β_B without the two constant mean coefficients.
+    let beta_mlp = Mat::<f32>::from_fn(n_body, kl + ka - 2, |i, j| {
+        if j < kl - 1 {
+            beta_b[(i, j + 1)]
+        } else {
+            beta_b[(i, j + 2)]
+        }
+    });
     // Validation split of the training identities (for early stopping): every 7th identity.
     let body_rows = &kinds_rows[0];
     let val_mask: Vec<bool> = body_rows.iter().map(|&r| ds.identity[r] % 7 == 3).collect();
@@ -464,9 +486,9 @@ pub fn train(
         };
         let fit = PcaHead::fit(y.as_ref(), Some(&w), &hopts)?;
         let codes = fit.codes;
-        let (xtr, ytr, xva, yva) = split_rows(&beta_b, &codes, &val_mask);
+        let (xtr, ytr, xva, yva) = split_rows(&beta_mlp, &codes, &val_mask);
         let mut net = Mlp::new(
-            &[kl + ka, cfg.correction_hidden, fit.head.rank()],
+            &[kl + ka - 2, cfg.correction_hidden, fit.head.rank()],
             cfg.seed ^ 0xC0,
         )?;
         let tcfg = mlp::TrainConfig {
@@ -520,26 +542,28 @@ pub fn train(
             let (col, row) = ((j % 6) / 3, (j % 6) % 3);
             rot[row][col] as f32
         });
-        let mut gram = Mat::<f64>::zeros(kl + ka, kl + ka);
+        // Gram metric MᵀM over the MLP's outputs (components 1.. of body_l and body_a).
+        let km = kl + ka - 2;
+        let mut gram = Mat::<f64>::zeros(km, km);
         let gl = blocks[0].components.gram();
         let ga = blocks[3].components.gram();
-        for a in 0..kl {
-            for c in 0..kl {
-                gram[(a, c)] = gl[a * kl + c];
+        for a in 1..kl {
+            for c in 1..kl {
+                gram[(a - 1, c - 1)] = gl[a * kl + c];
             }
         }
-        for a in 0..ka {
-            for c in 0..ka {
-                gram[(kl + a, kl + c)] = ga[a * ka + c];
+        for a in 1..ka {
+            for c in 1..ka {
+                gram[(kl - 1 + a - 1, kl - 1 + c - 1)] = ga[a * ka + c];
             }
         }
-        let tr: f64 = (0..kl + ka).map(|i| gram[(i, i)]).sum::<f64>() / (kl + ka) as f64;
-        for i in 0..kl + ka {
+        let tr: f64 = (0..km).map(|i| gram[(i, i)]).sum::<f64>() / km.max(1) as f64;
+        for i in 0..km {
             gram[(i, i)] += 1e-3 * tr.max(1e-12);
         }
         let mut sizes = vec![6 * index.len()];
         sizes.extend_from_slice(&cfg.motion_hidden);
-        sizes.push(kl + ka);
+        sizes.push(km);
         let mut net = Mlp::new(&sizes, cfg.seed ^ 0x70)?;
         let tcfg = mlp::TrainConfig {
             epochs: cfg.motion_epochs,
@@ -547,7 +571,7 @@ pub fn train(
             loss: Loss::Metric(gram),
             ..mlp::TrainConfig::default()
         };
-        let (xtr, ytr, xva, yva) = split_rows(&x, &beta_b, &val_mask);
+        let (xtr, ytr, xva, yva) = split_rows(&x, &beta_mlp, &val_mask);
         let train_set = mlp::Dataset::new(xtr.as_ref(), ytr.as_ref())?;
         let val_set = if xva.nrows() > 0 {
             Some(mlp::Dataset::new(xva.as_ref(), yva.as_ref())?)
