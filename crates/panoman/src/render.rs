@@ -25,7 +25,7 @@
 // Part of the API is for commands that do not exist yet (error maps, overlays).
 #![allow(dead_code)]
 
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Context, Result};
 use panoman_mesh::TriMesh;
 use panoman_mesh::measure::vertex_normals;
 use std::path::Path;
@@ -165,29 +165,8 @@ impl RgbImage {
         let bytes = self
             .encode_png()
             .with_context(|| format!("{}: PNG encoding failed", path.display()))?;
-        write_bytes_atomic(path, &bytes)
+        crate::util::write_atomic(path, &bytes)
     }
-}
-
-/// Writes `bytes` to `path` atomically (temporary file in the same directory, then rename).
-fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .ok_or_else(|| anyhow!("{}: not a file path", path.display()))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    std::fs::write(&tmp, bytes).map_err(|e| anyhow!("{}: {e}", path.display()))?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        anyhow!("{}: {e}", path.display())
-    })
 }
 
 /// A colour map for scalar maps (e.g. per-vertex errors): `t` clamped to [0, 1] goes from

@@ -52,8 +52,10 @@ pub fn open_assets(arg: Option<&Path>) -> Result<AssetDir> {
     Ok(AssetDir::open(&asset_dir(arg))?)
 }
 
-/// Writes `text` to `path` atomically (temp file in the same directory, then rename).
-pub fn write_atomic(path: &Path, text: &str) -> Result<()> {
+/// Writes `bytes` (text or binary) to `path` atomically (temp file in the same directory, then
+/// rename); on failure the temp file is removed and the error names `path`.
+pub fn write_atomic(path: &Path, bytes: impl AsRef<[u8]>) -> Result<()> {
+    let text = bytes.as_ref();
     let dir = path
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
@@ -66,7 +68,7 @@ pub fn write_atomic(path: &Path, text: &str) -> Result<()> {
         name.to_string_lossy(),
         std::process::id()
     ));
-    std::fs::write(&tmp, text).with_context(|| tmp.display().to_string())?;
+    std::fs::write(&tmp, text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     std::fs::rename(&tmp, path).map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
         anyhow::anyhow!("{}: {e}", path.display())

@@ -60,44 +60,16 @@ impl Group {
     }
 }
 
-/// The 15 body keypoints of TC-127 (architecture.md §5).
-const BODY: [&str; 15] = [
-    "neck",
-    "nose",
-    "body_center",
-    "l_shoulder",
-    "l_elbow",
-    "l_wrist",
-    "l_hip",
-    "l_knee",
-    "l_ankle",
-    "r_shoulder",
-    "r_elbow",
-    "r_wrist",
-    "r_hip",
-    "r_knee",
-    "r_ankle",
-];
-
-/// The group of a TC-127 keypoint name, `None` for an unknown name.
+/// The group of a TC-127 keypoint name (the layout of `panoman_human::keypoints`), `None`
+/// for an unknown name.
 fn group_of(name: &str) -> Option<Group> {
-    let numbered = |prefix: &str, n: usize| {
-        name.strip_prefix(prefix)
-            .filter(|d| d.len() == 2 && d.bytes().all(|b| b.is_ascii_digit()))
-            .and_then(|d| d.parse::<usize>().ok())
-            .is_some_and(|k| k < n)
-    };
-    if BODY.contains(&name) {
-        Some(Group::Body)
-    } else if numbered("face_", 70) {
-        Some(Group::Face)
-    } else if numbered("lhand_", 21) {
-        Some(Group::LeftHand)
-    } else if numbered("rhand_", 21) {
-        Some(Group::RightHand)
-    } else {
-        None
-    }
+    use panoman_human::keypoints::{KeypointGroup, keypoint_index};
+    Some(match KeypointGroup::of(keypoint_index(name)?) {
+        KeypointGroup::Body => Group::Body,
+        KeypointGroup::Face => Group::Face,
+        KeypointGroup::LeftHand => Group::LeftHand,
+        KeypointGroup::RightHand => Group::RightHand,
+    })
 }
 
 /// Reads a keypoint file: points grouped for drawing.
