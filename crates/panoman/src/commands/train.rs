@@ -30,6 +30,9 @@ pub struct TrainArgs {
     /// Seed of every random choice (same data + seed → byte-identical model).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Override the components per part as `BODY,FACE,HANDS` (e.g. `400,100,50`).
+    #[arg(long)]
+    pub components: Option<String>,
     /// Asset directory (default: $PANOMAN_ASSETS, else the user cache directory).
     #[arg(long)]
     pub assets: Option<PathBuf>,
@@ -40,6 +43,19 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let t0 = Instant::now();
     let mut cfg = TrainConfig::preset(&a.preset)?;
     cfg.seed = a.seed;
+    if let Some(c) = &a.components {
+        let v: Vec<usize> = c
+            .split(',')
+            .map(|x| x.trim().parse::<usize>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| {
+                anyhow::anyhow!("--components: expected BODY,FACE,HANDS counts, got '{c}'")
+            })?;
+        if v.len() != 3 || v.contains(&0) {
+            bail!("--components: expected three positive counts BODY,FACE,HANDS, got '{c}'");
+        }
+        cfg.components = [v[0], v[1], v[2]];
+    }
     let ds = Dataset::open(&a.data)?;
     let assets = crate::util::open_assets(a.assets.as_deref())?;
     let full = full_template(&assets)?;
