@@ -546,69 +546,16 @@ fn fmt_f64(x: f64) -> String {
     }
 }
 
-/// Writes `text` to `path` atomically.
+/// Writes `text` to `path` atomically (the project's atomic writer).
 fn write_atomic(path: &Path, text: &str) -> Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .ok_or_else(|| HumanError::format(path, "not a file path"))?;
-    static COUNTER: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}-{n}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    std::fs::write(&tmp, text).map_err(|e| HumanError::io(&tmp, e))?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        HumanError::io(path, e)
-    })
+    Ok(panoman_mesh::io::write_bytes_atomically(
+        path,
+        text.as_bytes(),
+    )?)
 }
 
 // ---------------------------------------------------------------------------------------------
 // Small dense linear algebra.
-
-/// Solves `a x = b` (dense, `n × n`, row-major) by Gaussian elimination with partial
-/// pivoting; `None` if singular.
-fn solve_dense(mut a: Vec<f64>, mut b: Vec<f64>, n: usize) -> Option<Vec<f64>> {
-    for col in 0..n {
-        let piv =
-            (col..n).max_by(|&i, &j| a[i * n + col].abs().total_cmp(&a[j * n + col].abs()))?;
-        if a[piv * n + col].abs() < 1e-300 {
-            return None;
-        }
-        if piv != col {
-            for k in 0..n {
-                a.swap(piv * n + k, col * n + k);
-            }
-            b.swap(piv, col);
-        }
-        let d = a[col * n + col];
-        for r in col + 1..n {
-            let f = a[r * n + col] / d;
-            if f == 0.0 {
-                continue;
-            }
-            for k in col..n {
-                a[r * n + k] -= f * a[col * n + k];
-            }
-            b[r] -= f * b[col];
-        }
-    }
-    let mut x = vec![0.0; n];
-    for r in (0..n).rev() {
-        let mut s = b[r];
-        for k in r + 1..n {
-            s -= a[r * n + k] * x[k];
-        }
-        x[r] = s / a[r * n + r];
-    }
-    x.iter().all(|v| v.is_finite()).then_some(x)
-}
 
 // ---------------------------------------------------------------------------------------------
 // Surface geometry on a rest mesh of the full template.
@@ -1676,8 +1623,8 @@ type FitResult = (Vec<Vec<(u32, f64)>>, Vec<GroupError>, Vec<KeypointError>);
 struct Builder<'a> {
     generator: &'a Generator,
     small: &'a SmallTopology,
-    /// Anny output index of each full-template vertex.
-    full_from_anny: Vec<u32>,
+    /// Anny topology → full template.
+    map: crate::outputs::TopologyMap,
     /// Regressed keypoints: (TC-127 index, target).
     targets: Vec<(usize, Target)>,
 }
@@ -1685,10 +1632,7 @@ struct Builder<'a> {
 impl Builder<'_> {
     /// Posed full-template positions of a generator sample.
     fn full_positions(&self, posed: &Posed) -> Vec<V3> {
-        self.full_from_anny
-            .iter()
-            .map(|&a| posed.vertices[a as usize])
-            .collect()
+        self.map.to_full(&posed.vertices)
     }
 
     /// Draws `n` samples of `domain`: identity ([`crate::sampling::IdentitySampler`]), body
@@ -1802,23 +1746,24 @@ fn fit_regressor(
     }
     let trace: f64 = (0..n).map(|i| a[i * n + i]).sum();
     let lambda = ridge * trace / n as f64;
-    // KKT system [A + λI, 1; 1ᵀ, 0] [w; μ] = [b; 1].
-    let m = n + 1;
-    let mut k = vec![0.0; m * m];
-    let mut rhs = vec![0.0; m];
-    for i in 0..n {
-        for j in i..n {
-            k[i * m + j] = a[i * n + j];
-            k[j * m + i] = a[i * n + j];
-        }
-        k[i * m + i] += lambda;
-        k[i * m + n] = 1.0;
-        k[n * m + i] = 1.0;
-        rhs[i] = b[i];
+    // Minimise wᵀ(A + λI)w − 2bᵀw subject to 1ᵀw = 1. With K = A + λI (SPD, Cholesky by
+    // faer), u = K⁻¹b and v = K⁻¹1, the solution is w = u − μv with μ = (1ᵀu − 1)/(1ᵀv).
+    use faer::linalg::solvers::Solve;
+    let kmat = faer::Mat::<f64>::from_fn(n, n, |i, j| {
+        let v = if i <= j { a[i * n + j] } else { a[j * n + i] };
+        if i == j { v + lambda } else { v }
+    });
+    let llt = kmat.llt(faer::Side::Lower).ok()?;
+    let rhs = faer::Mat::<f64>::from_fn(n, 2, |i, j| if j == 0 { b[i] } else { 1.0 });
+    let sol = llt.solve(&rhs);
+    let (su, sv): (f64, f64) =
+        (0..n).fold((0.0, 0.0), |(p, q), i| (p + sol[(i, 0)], q + sol[(i, 1)]));
+    if sv.is_nan() || sv.abs() == 0.0 {
+        return None;
     }
-    rhs[n] = 1.0;
-    let sol = solve_dense(k, rhs, m)?;
-    Some(sol[..n].to_vec())
+    let mu = (su - 1.0) / sv;
+    let w: Vec<f64> = (0..n).map(|i| sol[(i, 0)] - mu * sol[(i, 1)]).collect();
+    w.iter().all(|x| x.is_finite()).then_some(w)
 }
 
 /// Per-group error statistics of the regressed keypoints `targets` (TC-127 indices) given
@@ -1893,24 +1838,9 @@ pub fn build_definitions(
             .position(|b| b == name)
             .ok_or_else(|| HumanError::Invalid(format!("the rig has no bone `{name}`")))
     };
-    let full_from_anny: Vec<u32> = template
-        .base_index
-        .iter()
-        .map(|&b| {
-            generator
-                .output_index_of_base(b)
-                .map(|i| i as u32)
-                .ok_or_else(|| {
-                    HumanError::Invalid(format!("template vertex {b} is no generator output"))
-                })
-        })
-        .collect::<Result<_>>()?;
+    let map = crate::outputs::TopologyMap::new(generator, template, small)?;
     let default_id = generator.identity(&ShapeParams::default())?;
-    let rest_anny = default_id.rest_vertices();
-    let rest: Vec<V3> = full_from_anny
-        .iter()
-        .map(|&a| rest_anny[a as usize])
-        .collect();
+    let rest: Vec<V3> = map.to_full(default_id.rest_vertices());
     let rest_small = small.prolong(&rest);
     let heads = default_id.bone_heads().to_vec();
     let tails = default_id.bone_tails().to_vec();
@@ -2070,7 +2000,7 @@ pub fn build_definitions(
     let builder = Builder {
         generator,
         small,
-        full_from_anny,
+        map,
         targets,
     };
     let train = builder.samples(
@@ -2233,7 +2163,7 @@ fn binding_row(b: &Binding) -> Vec<(u32, f64)> {
 
 /// Version of the definition rules and of the cache format; bump it when a rule, the fit or
 /// the format changes (older caches are then rebuilt).
-pub const DEFINITIONS_VERSION: u32 = 1;
+pub const DEFINITIONS_VERSION: u32 = 2;
 
 /// File name of the cached definitions in [`derived_dir`].
 pub const CACHE_FILE: &str = "tc127_keypoints_v1.json";

@@ -20,6 +20,7 @@ pub mod measure;
 pub mod mesh;
 pub mod recon;
 pub mod rla;
+pub mod shapes;
 pub mod shell;
 pub mod sparse;
 pub mod topology;

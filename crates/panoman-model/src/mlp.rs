@@ -31,7 +31,7 @@ mod train;
 pub use jacobian::FactoredJacobian;
 pub use net::{ForwardScratch, Mlp};
 pub use pca_head::{PcaHead, PcaHeadFit, PcaHeadOptions};
-pub use store::{Tensor, TensorData, TensorStore};
+pub use store::{Element, Tensor, TensorData, TensorStore};
 pub use train::{
     Dataset, EpochStats, Loss, OutputNorm, TrainConfig, TrainReport, cosine_lr, evaluate,
     loss_gradient, train,

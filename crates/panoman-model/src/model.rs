@@ -230,7 +230,10 @@ impl Params {
     /// Writes the parameters as pretty JSON, atomically.
     pub fn write(&self, path: &Path) -> Result<()> {
         let text = serde_json::to_string_pretty(self).expect("params serialize");
-        write_atomic(path, text.as_bytes())
+        Ok(panoman_mesh::io::write_bytes_atomically(
+            path,
+            text.as_bytes(),
+        )?)
     }
 }
 
@@ -380,7 +383,7 @@ impl PanoManModel {
 
     /// Number of entries of [`PanoManModel::body_beta_f32`]: `K_LB + K_AB − 2`.
     pub fn n_body_mlp(&self) -> usize {
-        (self.blocks[0].n_components() + self.blocks[3].n_components()).saturating_sub(2)
+        body_mlp_len(&self.blocks)
     }
 
     /// Saves the model as one safetensors file (atomic write). Tensors: `template.faces`,
@@ -589,6 +592,9 @@ impl PanoManModel {
         let std_devs = get_f64(s, "shape.std_devs", &[k])?;
         let explained = get_f64(s, "shape.explained", &[k])?;
         let totals = get_f64(s, "shape.totals", &[2])?;
+        if std_devs.iter().any(|&x| x <= 0.0) {
+            return Err(bad("shape.std_devs must be positive".into()));
+        }
         let shape = ShapePca {
             mean,
             components: Mat::from_fn(d, k, |i, j| comps[i * k + j]),
@@ -669,7 +675,7 @@ impl PanoManModel {
                     .collect()
             })
             .collect();
-        let k_body = (blocks[0].n_components() + blocks[3].n_components()).saturating_sub(2);
+        let k_body = body_mlp_len(&blocks);
         let correction = if h.correction {
             let mlp = Mlp::read(s, "correction.mlp")?;
             let head = PcaHead::read(s, "correction.head")?;
@@ -724,60 +730,21 @@ impl PanoManModel {
     }
 }
 
-fn get<'a>(s: &'a TensorStore, name: &str, shape: &[usize]) -> Result<&'a TensorData> {
-    let t = s
-        .get(name)
-        .ok_or_else(|| ModelError::Invalid(format!("missing tensor '{name}'")))?;
-    if t.shape != shape {
-        return Err(ModelError::Invalid(format!(
-            "tensor '{name}' has shape {:?}, expected {shape:?}",
-            t.shape
-        )));
-    }
-    Ok(&t.data)
+/// `K_LB + K_AB − 2`: the body coefficients the MLPs see (without the two mean coefficients).
+fn body_mlp_len(blocks: &[Block]) -> usize {
+    (blocks[0].n_components() + blocks[3].n_components()).saturating_sub(2)
 }
 
 fn get_u32(s: &TensorStore, name: &str, shape: &[usize]) -> Result<Vec<u32>> {
-    match get(s, name, shape)? {
-        TensorData::U32(v) => Ok(v.clone()),
-        _ => Err(ModelError::Invalid(format!("tensor '{name}' must be u32"))),
-    }
+    Ok(s.u32_tensor(name, shape)?.to_vec())
 }
 
 fn get_f32(s: &TensorStore, name: &str, shape: &[usize]) -> Result<Vec<f32>> {
-    match get(s, name, shape)? {
-        TensorData::F32(v) if v.iter().all(|x| x.is_finite()) => Ok(v.clone()),
-        TensorData::F32(_) => Err(ModelError::Invalid(format!(
-            "tensor '{name}' has non-finite values"
-        ))),
-        _ => Err(ModelError::Invalid(format!("tensor '{name}' must be f32"))),
-    }
+    Ok(s.f32_tensor(name, shape)?.to_vec())
 }
 
 fn get_f64(s: &TensorStore, name: &str, shape: &[usize]) -> Result<Vec<f64>> {
-    match get(s, name, shape)? {
-        TensorData::F64(v) if v.iter().all(|x| x.is_finite()) => Ok(v.clone()),
-        TensorData::F64(_) => Err(ModelError::Invalid(format!(
-            "tensor '{name}' has non-finite values"
-        ))),
-        _ => Err(ModelError::Invalid(format!("tensor '{name}' must be f64"))),
-    }
-}
-
-/// Writes bytes to `path` atomically (temporary file in the same directory, then rename).
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let io = |source| ModelError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(format!(".tmp{}", std::process::id()));
-    let tmp = std::path::PathBuf::from(tmp);
-    std::fs::write(&tmp, bytes).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        io(e)
-    })
+    Ok(s.f64_tensor(name, shape)?.to_vec())
 }
 
 /// Per-topology evaluator of a model: topology tables, `g`'s factorizations and workspace, and
@@ -807,6 +774,27 @@ impl<'m> Evaluator<'m> {
     pub fn new(model: &'m PanoManModel) -> Result<Self> {
         let topo = Topology::build(model.n_vertices, &model.faces)?;
         let rec = Reconstructor::new(&topo)?;
+        Self::with_kernel(model, topo, rec)
+    }
+
+    /// The per-topology part (tables and g's factorizations), to build another evaluator of a
+    /// model with the same template without redoing it ([`Evaluator::with_kernel`]).
+    pub fn into_kernel(self) -> (Topology, Reconstructor) {
+        (self.topo, self.rec)
+    }
+
+    /// An evaluator from an existing per-topology kernel (see [`Evaluator::into_kernel`]);
+    /// only the encoder's normal equations are built.
+    pub fn with_kernel(
+        model: &'m PanoManModel,
+        topo: Topology,
+        rec: Reconstructor,
+    ) -> Result<Self> {
+        if topo.n_vertices != model.n_vertices || topo.faces != model.faces {
+            return Err(ModelError::Invalid(
+                "evaluator kernel of another topology than the model's".into(),
+            ));
+        }
         let ws = rec.workspace();
         let encoders = [
             BlockEncoder::new(model, [0, 1, 2], topo.n_edges())?,
@@ -850,6 +838,18 @@ impl<'m> Evaluator<'m> {
     /// blocks). With `correction`, β is refined by fixed-point iterations
     /// `β ← LS(x − R(β))` so that `X̄ + Mβ + R(β)` matches the mesh's RLA.
     pub fn encode(&self, mesh: &[V3], rest: Option<&[V3]>, correction: bool) -> Result<Params> {
+        for (what, p) in [("mesh", Some(mesh)), ("rest mesh", rest)] {
+            if let Some(p) = p
+                && p.len() != self.model.n_vertices
+            {
+                return Err(ModelError::Invalid(format!(
+                    "{what} has {} vertices, the model's {} topology has {}",
+                    p.len(),
+                    self.model.topology_name,
+                    self.model.n_vertices
+                )));
+            }
+        }
         let flat = |p: &[V3]| -> Vec<f64> { p.iter().flatten().copied().collect() };
         let alpha = self.model.shape.project(&flat(rest.unwrap_or(mesh)));
         let rest_shape = self.model.rest_shape(&alpha);

@@ -19,9 +19,7 @@
 use crate::error::{ModelError, Result};
 use crate::geodesic::{EdgeGeodesics, PartGeodesics};
 use crate::mlp::{self, Loss, Mlp, OutputNorm, PcaHead, PcaHeadOptions};
-use crate::model::{
-    BLOCK_NAMES, Block, Correction, Evaluator, KeypointRows, Motion, PanoManModel, Params,
-};
+use crate::model::{BLOCK_NAMES, Block, Correction, Evaluator, KeypointRows, Motion, PanoManModel};
 use crate::pca::ShapePca;
 use crate::splocs::{self, Decomposition, SparseRows, SplocsOptions};
 use faer::Mat;
@@ -852,6 +850,8 @@ pub fn component_curves(
     rows_per_kind: usize,
 ) -> Result<Vec<CurvePoint>> {
     let mut points = Vec::new();
+    // Topology tables and g's factorizations are shared by every truncated model.
+    let mut kernel: Option<(Topology, panoman_mesh::Reconstructor)> = None;
     for (part, kind, name) in [(0usize, 1u8, "body"), (1, 2, "face"), (2, 3, "hands")] {
         let rows = held_out_rows(ds, kind, rows_per_kind);
         if rows.is_empty() {
@@ -882,7 +882,10 @@ pub fn component_curves(
             for b in [part, part + 3] {
                 truncate_block(&mut m.blocks[b], k);
             }
-            let mut ev = Evaluator::new(&m)?;
+            let mut ev = match kernel.take() {
+                Some((topo, rec)) => Evaluator::with_kernel(&m, topo, rec)?,
+                None => Evaluator::new(&m)?,
+            };
             let (mut rl2, mut ra2, mut nrl, mut nra) = (0.0, 0.0, 0usize, 0usize);
             let (mut mean, mut max) = (0.0, 0.0f64);
             for (mesh, rest) in &data {
@@ -911,6 +914,7 @@ pub fn component_curves(
                 mesh_mean_mm: 1e3 * mean / data.len() as f64,
                 mesh_max_mm: 1e3 * max,
             });
+            kernel = Some(ev.into_kernel());
         }
     }
     Ok(points)
@@ -924,17 +928,4 @@ fn truncate_block(b: &mut Block, k: usize) {
     b.components.col_idx.truncate(end);
     b.components.values.truncate(end);
     b.beta_range.truncate(k);
-}
-
-/// Encodes `mesh` and rebuilds it (for tests and the CLI): returns the parameters and the
-/// rebuilt vertices.
-pub fn encode_and_rebuild(
-    ev: &mut Evaluator<'_>,
-    mesh: &[V3],
-    rest: Option<&[V3]>,
-    correction: bool,
-) -> Result<(Params, Vec<V3>)> {
-    let p = ev.encode(mesh, rest, correction)?;
-    let v = ev.pose(&p, correction)?;
-    Ok((p, v))
 }

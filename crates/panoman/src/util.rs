@@ -1,6 +1,6 @@
 //! Shared helpers of the commands: timing, assets lookup, JSON output, test poses.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use panoman_human::assets::{self, AssetDir};
 use panoman_mesh::geom::V3;
 use std::path::{Path, PathBuf};
@@ -52,27 +52,13 @@ pub fn open_assets(arg: Option<&Path>) -> Result<AssetDir> {
     Ok(AssetDir::open(&asset_dir(arg))?)
 }
 
-/// Writes `bytes` (text or binary) to `path` atomically (temp file in the same directory, then
-/// rename); on failure the temp file is removed and the error names `path`.
+/// Writes `bytes` (text or binary) to `path` atomically (the project's one atomic writer,
+/// `panoman_mesh::io::write_bytes_atomically`); the error names `path`.
 pub fn write_atomic(path: &Path, bytes: impl AsRef<[u8]>) -> Result<()> {
-    let text = bytes.as_ref();
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .with_context(|| format!("{}: not a file path", path.display()))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    std::fs::write(&tmp, text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        anyhow::anyhow!("{}: {e}", path.display())
-    })
+    Ok(panoman_mesh::io::write_bytes_atomically(
+        path,
+        bytes.as_ref(),
+    )?)
 }
 
 /// A smooth, large, non-rigid test deformation of a standing body (Z up): the upper body

@@ -113,6 +113,20 @@ fn small_model_trains_poses_and_encodes() {
     let mut ev = Evaluator::new(&model).unwrap();
     let zero = ev.pose(&Params::default(), true).unwrap();
     assert!(zero.iter().flatten().all(|c| c.is_finite()));
+    assert_eq!(
+        model.n_body_mlp(),
+        model.body_beta_f32(&Params::default()).len()
+    );
+    // Keypoints evaluate on posed meshes: each is an affine combination, so it lies inside
+    // the bounding box of the mesh.
+    let kp = model.keypoints.evaluate(&zero);
+    assert_eq!(kp.len(), 127);
+    for c in 0..3 {
+        let lo = zero.iter().map(|p| p[c]).fold(f64::INFINITY, f64::min);
+        let hi = zero.iter().map(|p| p[c]).fold(f64::NEG_INFINITY, f64::max);
+        let slack = 0.05 * (hi - lo);
+        assert!(kp.iter().all(|p| p[c] >= lo - slack && p[c] <= hi + slack));
+    }
     // Encoding a held-out mesh and posing it back reproduces it far better than the rest
     // shape does (the motion is captured), and the encoding is consistent: encode(pose(p))
     // recovers the RLA of pose(p).

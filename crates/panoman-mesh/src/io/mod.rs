@@ -173,10 +173,16 @@ pub(crate) fn write_f64<W: Write>(w: &mut W, x: f64) -> std::io::Result<()> {
 
 static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
+/// Writes `bytes` to `path` atomically (see [`write_atomically`]).
+pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_atomically(path, |w| std::io::Write::write_all(w, bytes))
+}
+
 /// Writes `path` atomically: `body` writes into a buffered temporary file in the same directory,
 /// which is then flushed, synced to disk and renamed onto `path`. On any failure the temporary
-/// file is removed and a [`MeshError::Io`] naming `path` is returned.
-pub(crate) fn write_atomically<F>(path: &Path, body: F) -> Result<()>
+/// file is removed and a [`MeshError::Io`] naming `path` is returned. This is the one atomic
+/// writer of the project (meshes, models, reports, images).
+pub fn write_atomically<F>(path: &Path, body: F) -> Result<()>
 where
     F: FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
 {

@@ -1,8 +1,8 @@
 //! Test meshes and a deterministic RNG shared by the kernel tests.
 #![allow(dead_code)]
 
-use panoman_mesh::geom::{V3, normalize};
-use std::collections::HashMap;
+use panoman_mesh::geom::V3;
+pub use panoman_mesh::shapes::icosphere;
 
 /// SplitMix64: small, deterministic, good enough for test data.
 pub struct Rng(pub u64);
@@ -31,75 +31,6 @@ impl Rng {
     pub fn vec3(&mut self) -> V3 {
         [self.normal(), self.normal(), self.normal()]
     }
-}
-
-/// Icosphere of radius 1 with `subdiv` loop subdivisions (outward CCW faces).
-pub fn icosphere(subdiv: usize) -> (Vec<V3>, Vec<[u32; 3]>) {
-    let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut v: Vec<V3> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .iter()
-    .map(|&p| normalize(p))
-    .collect();
-    let mut f: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..subdiv {
-        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut nf = Vec::with_capacity(f.len() * 4);
-        let mut midpoint = |a: u32, b: u32, v: &mut Vec<V3>| -> u32 {
-            let key = (a.min(b), a.max(b));
-            *mid.entry(key).or_insert_with(|| {
-                let p = v[a as usize];
-                let q = v[b as usize];
-                v.push(normalize([
-                    (p[0] + q[0]) / 2.0,
-                    (p[1] + q[1]) / 2.0,
-                    (p[2] + q[2]) / 2.0,
-                ]));
-                (v.len() - 1) as u32
-            })
-        };
-        for &[a, b, c] in &f {
-            let ab = midpoint(a, b, &mut v);
-            let bc = midpoint(b, c, &mut v);
-            let ca = midpoint(c, a, &mut v);
-            nf.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        f = nf;
-    }
-    (v, f)
 }
 
 /// A smooth, strongly non-rigid deformation of the unit sphere: anisotropic scale, a twist about

@@ -42,6 +42,38 @@ pub enum TensorData {
     I64(Vec<i64>),
 }
 
+/// Element types a [`TensorStore`] can hand out as typed slices.
+pub trait Element: Copy + std::fmt::Debug {
+    /// safetensors dtype name.
+    const DTYPE: &'static str;
+    /// The elements if `data` holds this type.
+    fn slice(data: &TensorData) -> Option<&[Self]>;
+    /// Whether the value is finite (always true for integers).
+    fn is_finite_value(&self) -> bool;
+}
+
+macro_rules! element {
+    ($t:ty, $variant:ident, $name:literal, $finite:expr) => {
+        impl Element for $t {
+            const DTYPE: &'static str = $name;
+            fn slice(data: &TensorData) -> Option<&[Self]> {
+                match data {
+                    TensorData::$variant(v) => Some(v),
+                    _ => None,
+                }
+            }
+            fn is_finite_value(&self) -> bool {
+                let f: fn(&$t) -> bool = $finite;
+                f(self)
+            }
+        }
+    };
+}
+element!(f32, F32, "F32", |x| x.is_finite());
+element!(f64, F64, "F64", |x| x.is_finite());
+element!(u32, U32, "U32", |_| true);
+element!(i64, I64, "I64", |_| true);
+
 impl TensorData {
     fn len(&self) -> usize {
         match self {
@@ -195,18 +227,19 @@ impl TensorStore {
         self.metadata.get(key).map(String::as_str)
     }
 
-    /// The f32 tensor `name` with exactly `shape`, all values finite.
+    /// The tensor `name` of element type `T` with exactly `shape`, all values finite.
     ///
-    /// Errors: [`ModelError::Format`] naming the tensor if it is missing, has another dtype or
-    /// shape, or holds a NaN/infinity.
-    pub fn f32_tensor(&self, name: &str, shape: &[usize]) -> Result<&[f32]> {
+    /// Errors: [`ModelError::Format`] naming the file and the tensor if it is missing, has
+    /// another dtype or shape, or holds a NaN/infinity.
+    pub fn tensor<T: Element>(&self, name: &str, shape: &[usize]) -> Result<&[T]> {
         let t = self
             .get(name)
             .ok_or_else(|| self.format_err(format!("missing tensor '{name}'")))?;
-        let TensorData::F32(v) = &t.data else {
+        let Some(v) = T::slice(&t.data) else {
             return Err(self.format_err(format!(
-                "tensor '{name}' has dtype {}, expected F32",
-                t.data.dtype_name()
+                "tensor '{name}' has dtype {}, expected {}",
+                t.data.dtype_name(),
+                T::DTYPE
             )));
         };
         if t.shape != shape {
@@ -215,40 +248,28 @@ impl TensorStore {
                 t.shape
             )));
         }
-        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        if let Some(i) = v.iter().position(|x| !x.is_finite_value()) {
             return Err(self.format_err(format!(
-                "tensor '{name}' element {i} is {} (not finite)",
+                "tensor '{name}' element {i} is {:?} (not finite)",
                 v[i]
             )));
         }
         Ok(v)
     }
 
-    /// The f64 tensor `name` with exactly `shape`, all values finite (errors as
-    /// [`TensorStore::f32_tensor`]).
+    /// [`TensorStore::tensor`] for f32.
+    pub fn f32_tensor(&self, name: &str, shape: &[usize]) -> Result<&[f32]> {
+        self.tensor(name, shape)
+    }
+
+    /// [`TensorStore::tensor`] for f64.
     pub fn f64_tensor(&self, name: &str, shape: &[usize]) -> Result<&[f64]> {
-        let t = self
-            .get(name)
-            .ok_or_else(|| self.format_err(format!("missing tensor '{name}'")))?;
-        let TensorData::F64(v) = &t.data else {
-            return Err(self.format_err(format!(
-                "tensor '{name}' has dtype {}, expected F64",
-                t.data.dtype_name()
-            )));
-        };
-        if t.shape != shape {
-            return Err(self.format_err(format!(
-                "tensor '{name}' has shape {:?}, expected {shape:?}",
-                t.shape
-            )));
-        }
-        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-            return Err(self.format_err(format!(
-                "tensor '{name}' element {i} is {} (not finite)",
-                v[i]
-            )));
-        }
-        Ok(v)
+        self.tensor(name, shape)
+    }
+
+    /// [`TensorStore::tensor`] for u32 (indices).
+    pub fn u32_tensor(&self, name: &str, shape: &[usize]) -> Result<&[u32]> {
+        self.tensor(name, shape)
     }
 
     /// Serializes to safetensors bytes (tensors sorted by name; metadata in the header).
@@ -339,18 +360,7 @@ impl TensorStore {
     /// Errors: [`ModelError::Io`] naming the path; [`ModelError::Invalid`] from serialization.
     pub fn save(&self, path: &Path) -> Result<()> {
         let bytes = self.to_bytes()?;
-        let io = |source| ModelError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut tmp = path.as_os_str().to_owned();
-        tmp.push(format!(".tmp{}", std::process::id()));
-        let tmp = PathBuf::from(tmp);
-        std::fs::write(&tmp, &bytes).map_err(io)?;
-        std::fs::rename(&tmp, path).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            io(e)
-        })
+        Ok(panoman_mesh::io::write_bytes_atomically(path, &bytes)?)
     }
 
     /// Reads a store from a safetensors file.

@@ -57,6 +57,9 @@ pub fn run(a: ComponentsArgs) -> Result<()> {
             BLOCK_NAMES.join(", ")
         );
     };
+    if a.count == 0 {
+        bail!("--count must be at least 1");
+    }
     let k_total = model.blocks[b].n_components();
     if a.first >= k_total {
         bail!(

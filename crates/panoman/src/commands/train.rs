@@ -92,31 +92,25 @@ pub fn run(a: TrainArgs) -> Result<()> {
     };
     let pb = indicatif::ProgressBar::new_spinner();
     pb.enable_steady_tick(Duration::from_millis(150));
+    // One progress reporter for training and evaluation: prints each finished stage's time.
     let mut stage_start = Instant::now();
     let mut last = String::new();
-    let out = train(&inputs, &cfg, &mut |stage| {
+    let mut stage = |name: &str| {
         if !last.is_empty() {
             pb.suspend(|| eprintln!("  {last}: {:.1} s", stage_start.elapsed().as_secs_f64()));
         }
-        last = stage.to_string();
+        last = name.to_string();
         stage_start = Instant::now();
-        pb.set_message(stage.to_string());
-    })
-    .with_context(|| a.data.display().to_string())?;
+        pb.set_message(name.to_string());
+    };
+    let out = train(&inputs, &cfg, &mut stage).with_context(|| a.data.display().to_string())?;
     out.model.save(&a.out)?;
     let stem = a.out.with_extension("");
     let report_path = PathBuf::from(format!("{}.report.json", stem.display()));
-    write_atomic(&report_path, &serde_json::to_string_pretty(&out.report)?)?;
-    let (eval, curves) = evaluate(&out.model, &ds, &regions, &cfg, &mut |stage| {
-        if !last.is_empty() {
-            pb.suspend(|| eprintln!("  {last}: {:.1} s", stage_start.elapsed().as_secs_f64()));
-        }
-        last = stage.to_string();
-        stage_start = Instant::now();
-        pb.set_message(stage.to_string());
-    })
-    .with_context(|| a.data.display().to_string())?;
-    pb.suspend(|| eprintln!("  {last}: {:.1} s", stage_start.elapsed().as_secs_f64()));
+    write_atomic(&report_path, serde_json::to_string_pretty(&out.report)?)?;
+    let (eval, curves) = evaluate(&out.model, &ds, &regions, &cfg, &mut stage)
+        .with_context(|| a.data.display().to_string())?;
+    stage("");
     pb.finish_and_clear();
     let mut report = out.report.clone();
     report["representation_error"] = eval["representation_error"].clone();
