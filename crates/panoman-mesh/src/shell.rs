@@ -59,6 +59,45 @@ pub struct Handle {
     pub weight: f64,
 }
 
+/// A soft constraint on a fixed linear combination of vertices (a keypoint regressor row, a
+/// barycentric surface point): `p(x) = Σ_m b_m x_m`, residual `√w (p(x) − p̂)` (3 rows), or
+/// `√w n̂ᵀ(p(x) − p̂)` (point-to-plane, 1 row) when `normal` is set (algorithms.md §4.2).
+/// `weight` has units 1/length². Every vertex pair of `rows` must be in the solver's pattern
+/// (see [`ShellSolver::with_extra_pairs`]; pairs of one triangle always are).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointConstraint {
+    /// `(vertex, b_m)` pairs.
+    pub rows: Vec<(u32, f64)>,
+    /// Target position p̂.
+    pub target: V3,
+    /// Weight w ≥ 0.
+    pub weight: f64,
+    /// Unit normal n̂ for a point-to-plane residual; `None` for point-to-point.
+    pub normal: Option<V3>,
+}
+
+impl PointConstraint {
+    /// `p(x) − p̂`.
+    pub fn offset(&self, x: &[V3]) -> V3 {
+        let mut p = [0.0; 3];
+        for &(v, b) in &self.rows {
+            for c in 0..3 {
+                p[c] += b * x[v as usize][c];
+            }
+        }
+        sub(p, self.target)
+    }
+
+    /// The constraint's energy `w |p(x) − p̂|²` or `w (n̂ᵀ(p(x) − p̂))²`.
+    pub fn energy(&self, x: &[V3]) -> f64 {
+        let d = self.offset(x);
+        match self.normal {
+            Some(n) => self.weight * dot(n, d).powi(2),
+            None => self.weight * dot(d, d),
+        }
+    }
+}
+
 /// Targets and weights of the shell energy (module docs, algorithms.md §4.1): per edge the
 /// target length ℓ*_e > 0, target signed dihedral angle φ*_e (internal sign, §1.1; ignored on
 /// boundary edges), weights w_L,e ≥ 0 and w_A,e ≥ 0, and optional vertex handles.
@@ -75,6 +114,8 @@ pub struct ShellTargets {
     pub angle_weights: Vec<f64>,
     /// Soft vertex handles.
     pub handles: Vec<Handle>,
+    /// Soft constraints on linear combinations of vertices (keypoints, surface points).
+    pub points: Vec<PointConstraint>,
 }
 
 impl ShellTargets {
@@ -104,6 +145,7 @@ impl ShellTargets {
             lengths,
             angles,
             handles: Vec::new(),
+            points: Vec::new(),
         };
         t.validate(topo)?;
         Ok(t)
@@ -222,6 +264,21 @@ impl ShellTargets {
                 )));
             }
         }
+        for (k, pc) in self.points.iter().enumerate() {
+            let bad = pc.rows.is_empty()
+                || bad_w(&pc.weight)
+                || !pc.target.iter().all(|c| c.is_finite())
+                || pc.normal.is_some_and(|n| !n.iter().all(|c| c.is_finite()))
+                || pc
+                    .rows
+                    .iter()
+                    .any(|&(v, b)| v as usize >= topo.n_vertices || !b.is_finite());
+            if bad {
+                return Err(MeshError::Numerical(format!(
+                    "shell targets: point constraint {k} is invalid (empty, out-of-range vertex or non-finite value)"
+                )));
+            }
+        }
         Ok(())
     }
 
@@ -337,6 +394,10 @@ pub struct ShellSolver {
     /// offsets of the stored (lower) 3×3 block's three columns (rows are consecutive). Pairs
     /// absent for boundary edges hold `u32::MAX`.
     slots: Vec<[[u32; 3]; 6]>,
+    /// Block pairs (lo, hi), lo < hi, sorted, with per-`lo` offsets: the off-diagonal blocks of
+    /// the pattern, for the slot lookup of point constraints.
+    pairs: Vec<(u32, u32)>,
+    nb_off: Vec<usize>,
     factor: SpdFactor,
     factor_scratch: Option<(bool, MemBuffer)>,
     solve_scratch: MemBuffer,
@@ -374,6 +435,13 @@ impl ShellSolver {
     ///
     /// Fails on a diamond whose two opposite vertices coincide (k = l).
     pub fn new(topo: &Topology) -> Result<Self> {
+        Self::with_extra_pairs(topo, &[])
+    }
+
+    /// As [`ShellSolver::new`], with the vertex pairs `extra` added to the pattern, so that
+    /// [`PointConstraint`]s whose supports couple non-adjacent vertices (keypoint regressors)
+    /// can be assembled. The pattern, and hence the symbolic factorization, is fixed here.
+    pub fn with_extra_pairs(topo: &Topology, extra: &[(u32, u32)]) -> Result<Self> {
         let nv = topo.n_vertices;
         let ne = topo.n_edges();
         // Block pairs (lo, hi), lo < hi.
@@ -390,6 +458,16 @@ impl ShellSolver {
                     )));
                 }
                 pairs.push((k.min(l), k.max(l)));
+            }
+        }
+        for &(a, b) in extra {
+            if a as usize >= nv || b as usize >= nv {
+                return Err(MeshError::Mismatch(format!(
+                    "extra pattern pair ({a}, {b}) out of range for {nv} vertices"
+                )));
+            }
+            if a != b {
+                pairs.push((a.min(b), a.max(b)));
             }
         }
         pairs.sort_unstable();
@@ -466,6 +544,8 @@ impl ShellSolver {
             n,
             pattern,
             slots,
+            pairs,
+            nb_off,
             factor,
             factor_scratch: None,
             solve_scratch,
@@ -593,6 +673,51 @@ impl ShellSolver {
                 grad[3 * v + c] += h.weight * d[c];
             }
         }
+        for (k, pc) in targets.points.iter().enumerate() {
+            energy += pc.energy(x);
+            let d = pc.offset(x);
+            // Block A (I or n̂n̂ᵀ) and A·d.
+            let (a, ad) = match pc.normal {
+                Some(nn) => {
+                    let s = dot(nn, d);
+                    (
+                        [0, 1, 2].map(|r| [0, 1, 2].map(|c| nn[r] * nn[c])),
+                        scale(nn, s),
+                    )
+                }
+                None => ([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], d),
+            };
+            for (p, &(vm, bm)) in pc.rows.iter().enumerate() {
+                axpy(grad, vm as usize, ad, pc.weight * bm);
+                for &(vn, bn) in &pc.rows[..=p] {
+                    let f = pc.weight * bm * bn;
+                    if vm == vn {
+                        let m = vm as usize;
+                        for c in 0..3 {
+                            let base = col_ptr[3 * m + c] - c;
+                            for r in c..3 {
+                                vals[base + r] += f * a[r][c];
+                            }
+                        }
+                    } else {
+                        let (lo, hi) = (vm.min(vn), vm.max(vn));
+                        let q = self.pairs[self.nb_off[lo as usize]..self.nb_off[lo as usize + 1]]
+                            .binary_search(&(lo, hi))
+                            .map_err(|_| {
+                                MeshError::Mismatch(format!(
+                                    "point constraint {k}: vertices {lo} and {hi} are not coupled in the solver's pattern (build it with ShellSolver::with_extra_pairs)"
+                                ))
+                            })?;
+                        for c in 0..3 {
+                            let sl = col_ptr[3 * lo as usize + c] + (3 - c) + 3 * q;
+                            for r in 0..3 {
+                                vals[sl + r] += f * a[r][c];
+                            }
+                        }
+                    }
+                }
+            }
+        }
         if !energy.is_finite()
             || grad.iter().any(|g| !g.is_finite())
             || vals.iter().any(|g| !g.is_finite())
@@ -638,9 +763,10 @@ impl ShellSolver {
         }
     }
 
-    /// Number of residuals: #E stretch rows, #E bend rows (zero on boundary edges), 3 per handle.
+    /// Number of residuals: #E stretch rows, #E bend rows (zero on boundary edges), 3 per handle,
+    /// 3 per point constraint (a point-to-plane constraint uses the first and leaves two zeros).
     pub fn n_residuals(&self, targets: &ShellTargets) -> usize {
-        2 * self.topo.n_edges() + 3 * targets.handles.len()
+        2 * self.topo.n_edges() + 3 * targets.handles.len() + 3 * targets.points.len()
     }
 
     /// The residual vector r(x) in the layout of [`ShellSolver::n_residuals`].
@@ -657,6 +783,12 @@ impl ShellSolver {
             for c in 0..3 {
                 out[2 * ne + 3 * h + c] = hd.weight.sqrt() * d[c];
             }
+        }
+        let base = 2 * ne + 3 * targets.handles.len();
+        for (k, pc) in targets.points.iter().enumerate() {
+            let d = pc.offset(x);
+            let r = point_rows(pc, d);
+            out[base + 3 * k..base + 3 * k + 3].copy_from_slice(&r);
         }
     }
 
@@ -691,6 +823,18 @@ impl ShellSolver {
             for c in 0..3 {
                 out[2 * ne + 3 * h + c] = w * p[c];
             }
+        }
+        let base = 2 * ne + 3 * targets.handles.len();
+        for (k, pc) in targets.points.iter().enumerate() {
+            let mut jv = [0.0; 3];
+            for &(u, b) in &pc.rows {
+                let p = at(u);
+                for c in 0..3 {
+                    jv[c] += b * p[c];
+                }
+            }
+            let r = point_rows(pc, jv);
+            out[base + 3 * k..base + 3 * k + 3].copy_from_slice(&r);
         }
     }
 
@@ -921,6 +1065,9 @@ fn energy_of(topo: &Topology, t: &ShellTargets, x: &[V3], chunk_sums: &mut [f64]
         let d = sub(x[h.vertex as usize], h.position);
         energy += h.weight * dot(d, d);
     }
+    for pc in &t.points {
+        energy += pc.energy(x);
+    }
     energy
 }
 
@@ -996,6 +1143,16 @@ fn add_off<const N: usize>(
         for r in 0..3 {
             vals[s + r] += g[hi][r] * gc;
         }
+    }
+}
+
+/// The 3 residual rows of a point constraint for the offset (or offset direction) `d`:
+/// `√w d`, or `(√w n̂ᵀd, 0, 0)` for point-to-plane.
+fn point_rows(pc: &PointConstraint, d: V3) -> [f64; 3] {
+    let w = pc.weight.sqrt();
+    match pc.normal {
+        Some(n) => [w * dot(n, d), 0.0, 0.0],
+        None => scale(d, w),
     }
 }
 

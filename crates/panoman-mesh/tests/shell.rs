@@ -7,7 +7,9 @@ use common::{Rng, deform, grid, icosphere};
 use panoman_mesh::align::aligned_error;
 use panoman_mesh::geom::{V3, norm, sub};
 use panoman_mesh::rla::{dihedral_angles, edge_lengths};
-use panoman_mesh::shell::{Handle, ShellOptions, ShellSolver, ShellStop, ShellTargets};
+use panoman_mesh::shell::{
+    Handle, PointConstraint, ShellOptions, ShellSolver, ShellStop, ShellTargets,
+};
 use panoman_mesh::sparse::SpdFactor;
 use panoman_mesh::{Reconstructor, Topology};
 
@@ -142,8 +144,41 @@ fn generic_problem(x: &[V3], topo: &Topology, seed: u64) -> (ShellTargets, Vec<V
             weight: 0.5 / (ml * ml),
         },
     ];
+    // A keypoint-like combination of scattered vertices and a point-to-plane surface point.
+    let f0 = topo.faces[2];
+    t.points = vec![
+        PointConstraint {
+            rows: vec![(0, 0.5), (5, 0.3), (9, 0.2)],
+            target: [0.05, -0.1, 0.2],
+            weight: 3.0 / (ml * ml),
+            normal: None,
+        },
+        PointConstraint {
+            rows: vec![(f0[0], 0.2), (f0[1], 0.3), (f0[2], 0.5)],
+            target: [0.3, 0.1, -0.2],
+            weight: 1.5 / (ml * ml),
+            normal: Some([0.6, 0.0, 0.8]),
+        },
+    ];
     let start = perturb(x, 0.03 * ml, seed + 7);
     (t, start)
+}
+
+/// The pattern pairs the point constraints of [`generic_problem`] need.
+const EXTRA_PAIRS: [(u32, u32); 3] = [(0, 5), (0, 9), (5, 9)];
+
+#[test]
+fn point_constraint_outside_the_pattern_is_an_error() {
+    let (x0, topo) = deformed_sphere(2);
+    let (targets, x) = generic_problem(&x0, &topo, 5);
+    let mut solver = ShellSolver::new(&topo).unwrap();
+    let err = solver
+        .linearize(&targets, &x, 1e-6)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("not coupled"), "{err}");
+    let mut solver = ShellSolver::with_extra_pairs(&topo, &EXTRA_PAIRS).unwrap();
+    assert!(solver.linearize(&targets, &x, 1e-6).is_ok());
 }
 
 #[test]
@@ -155,7 +190,7 @@ fn gradient_and_gauss_newton_matrix_match_finite_differences() {
     }];
     for (x0, topo) in meshes {
         let (targets, x) = generic_problem(&x0, &topo, 5);
-        let mut solver = ShellSolver::new(&topo).unwrap();
+        let mut solver = ShellSolver::with_extra_pairs(&topo, &EXTRA_PAIRS).unwrap();
         let e0 = solver.linearize(&targets, &x, 1e-6).unwrap();
         assert!(e0 > 0.0);
         let n = 3 * x.len();
@@ -276,7 +311,7 @@ fn symbolic_reuse_matches_fresh_factorization() {
     let (x0, topo) = deformed_sphere(2);
     let (targets, x1) = generic_problem(&x0, &topo, 9);
     let x2 = perturb(&x1, 0.02 * mean_edge(&topo, &x1), 33);
-    let mut solver = ShellSolver::new(&topo).unwrap();
+    let mut solver = ShellSolver::with_extra_pairs(&topo, &EXTRA_PAIRS).unwrap();
     let n = 3 * x1.len();
     let mut d = vec![0.0; n];
     solver.linearize(&targets, &x1, 1e-6).unwrap();
