@@ -181,11 +181,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
     for part in ["body", "face", "hands"] {
         let e = &ev[part];
         println!(
-            "  held-out {part:<5}: mean {:.2} mm (max {:.1}) | with correction {:.2} mm | exact rest shape {:.2} mm  [{} rows]",
+            "  held-out {part:<5}: mean {:.2} mm (max {:.1}) | with correction {:.2} mm | exact rest shape {:.2} mm | whole-mesh alignment {:.2} mm  [{} rows]",
             e["mean_mm"].as_f64().unwrap_or(f64::NAN),
             e["max_mm"].as_f64().unwrap_or(f64::NAN),
             e["mean_mm_corrected"].as_f64().unwrap_or(f64::NAN),
             e["mean_mm_exact_rest"].as_f64().unwrap_or(f64::NAN),
+            e["mean_mm_whole_alignment"].as_f64().unwrap_or(f64::NAN),
             e["rows"]
         );
     }
