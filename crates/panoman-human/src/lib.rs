@@ -14,8 +14,10 @@ pub mod npy;
 pub mod template;
 
 pub use error::{HumanError, Result};
+pub mod clip;
 pub mod dataset;
 pub mod generator;
+pub mod ik;
 pub mod keypoints;
 pub mod outputs;
 pub mod params;
