@@ -381,6 +381,39 @@ impl PanoManModel {
         x
     }
 
+    /// β_B from a skeleton pose through the motion MLP (algorithms.md §5.2): `euler(bone)` gives
+    /// a bone's local Euler angles (radians, R = Rz·Ry·Rx; `None` = rest), the input is each
+    /// of the MLP's bones' 6-D rotation (first two columns of R), and the output fills
+    /// `body_l` and `body_a` with their mean coefficients (component 0) set to 1. `None` when
+    /// the model has no motion MLP.
+    pub fn beta_from_theta(
+        &self,
+        euler: &dyn Fn(&str) -> Option<[f64; 3]>,
+    ) -> Option<(Vec<f64>, Vec<f64>)> {
+        let m = self.motion.as_ref()?;
+        let mut x = Vec::with_capacity(6 * m.theta_bones.len());
+        for b in &m.theta_bones {
+            let [ex, ey, ez] = euler(b).unwrap_or([0.0; 3]);
+            let r = crate::train::euler_xyz(ex, ey, ez);
+            // The first two columns of R, column-major.
+            x.extend((0..6).map(|i| r[i % 3][i / 3]));
+        }
+        let y = m.mlp.forward_one_f64(&x);
+        let kl = self.blocks[0].n_components();
+        let ka = self.blocks[3].n_components();
+        let mut bl = vec![0.0; kl];
+        let mut ba = vec![0.0; ka];
+        if kl > 0 {
+            bl[0] = 1.0;
+            bl[1..].copy_from_slice(&y[..kl - 1]);
+        }
+        if ka > 0 {
+            ba[0] = 1.0;
+            ba[1..].copy_from_slice(&y[kl.saturating_sub(1)..kl.saturating_sub(1) + ka - 1]);
+        }
+        Some((bl, ba))
+    }
+
     /// Number of entries of [`PanoManModel::body_beta_f32`]: `K_LB + K_AB − 2`.
     pub fn n_body_mlp(&self) -> usize {
         body_mlp_len(&self.blocks)
