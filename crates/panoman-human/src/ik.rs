@@ -340,6 +340,10 @@ pub struct IkConfig {
     /// its other phenotype values (breasts, races) and local changes are kept fixed. `None`:
     /// the default shape (all phenotype values 0.5, no face units).
     pub initial_shape: Option<ShapeParams>,
+    /// Warm start (sequences): start from this state (e.g. the previous frame's
+    /// [`IkResult::state`]) and run only the final `all` stage, without the Kabsch
+    /// initialisation, the early stages or the phenotype restart. `None` (default): cold.
+    pub initial_state: Option<IkState>,
 }
 
 impl Default for IkConfig {
@@ -357,6 +361,7 @@ impl Default for IkConfig {
             max_iterations: 40,
             tolerance: 1e-9,
             initial_shape: None,
+            initial_state: None,
         }
     }
 }
@@ -1852,8 +1857,26 @@ impl<'a> IkSolver<'a> {
                 .any(|t| t.weight > 0.0 && KeypointGroup::of(t.index) == KeypointGroup::Face)
         });
         let n_bones = self.parents.len();
-        let mut state = IkState::rest(n_bones, &template);
-        if !fit_units {
+        let warm = config.initial_state.is_some();
+        let mut state = match &config.initial_state {
+            Some(s) => {
+                if s.angles.len() != n_bones
+                    || !s
+                        .translation
+                        .iter()
+                        .chain(s.rotation.iter().flatten())
+                        .all(|x| x.is_finite())
+                {
+                    return Err(HumanError::Invalid(format!(
+                        "IK warm start: {} bone angles (expected {n_bones}) or non-finite global motion",
+                        s.angles.len()
+                    )));
+                }
+                s.clone()
+            }
+            None => IkState::rest(n_bones, &template),
+        };
+        if !fit_units && !warm {
             state.face_units = template.facial_actions;
         }
         let grid = self.grid(&template)?;
@@ -1879,7 +1902,9 @@ impl<'a> IkSolver<'a> {
         let w: Vec<f64> = init.iter().map(|t| t.weight).collect();
         let h0 = cur.shape.heads[0];
         let mut st = cur.state.clone();
-        if init.len() >= 3 {
+        if warm {
+            // Keep the warm start's global motion.
+        } else if init.len() >= 3 {
             let rigid = rigid_align(&model, &goal, Some(&w));
             st.rotation = rigid.r;
             // R k + t = R (k − h0) + h0 + u  ⇒  u = t + R h0 − h0.
@@ -1987,7 +2012,7 @@ impl<'a> IkSolver<'a> {
         let mut stages = Vec::new();
         let mut iterations = 0;
         for spec in &specs {
-            if spec.rows.is_empty() || spec.iters == 0 {
+            if spec.rows.is_empty() || spec.iters == 0 || (warm && spec.name != "all") {
                 continue;
             }
             let t = Instant::now();
@@ -2044,7 +2069,7 @@ impl<'a> IkSolver<'a> {
                 face_unit_prior: config.face_unit_prior * scale,
                 ..config.clone()
             };
-            let it = if spec.name == "all" && spec.phen && config.phenotype_restart {
+            let it = if spec.name == "all" && spec.phen && config.phenotype_restart && !warm {
                 // Second start: the same pose from the default phenotype.
                 let mut st = cur.state.clone();
                 st.phenotype = [0.5; 6];
