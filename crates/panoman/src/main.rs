@@ -48,6 +48,12 @@ enum Command {
     Synth(commands::synth::SynthArgs),
     /// TC-127 keypoints (body, face, hands) of a mesh in template topology, as JSON.
     Keypoints(commands::keypoints::KeypointsArgs),
+    /// Fit PanoMan (or the LBS baseline) to keypoints, a point cloud, handles.
+    Fit(commands::fit::FitArgs),
+    /// Fit a sequence of keypoint files, warm-started frame to frame.
+    Track(commands::fit::TrackArgs),
+    /// The paper's experiments on open data: plots, renders, summary.json, index.html.
+    Eval(commands::eval::EvalArgs),
 }
 
 fn main() -> ExitCode {
@@ -73,6 +79,9 @@ fn main() -> ExitCode {
         Command::Render(a) => commands::render::run(a),
         Command::Synth(a) => commands::synth::run(a),
         Command::Keypoints(a) => commands::keypoints::run(a),
+        Command::Fit(a) => commands::fit::run(a),
+        Command::Track(a) => commands::fit::run_track(a),
+        Command::Eval(a) => commands::eval::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -126,3 +126,14 @@ pub fn add_rla_noise(rla: &mut panoman_mesh::Rla, len_sigma: f64, angle_sigma: f
         *ra += angle_sigma * rng.normal();
     }
 }
+
+/// A progress bar `{what} [====>   ] pos/len  eta` on stderr (hidden when not a terminal).
+pub fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
+    let pb = indicatif::ProgressBar::new(len);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(&format!(
+        "{{spinner}} {what} [{{bar:40}}] {{pos}}/{{len}}  {{per_sec}}  eta {{eta}}"
+    )) {
+        pb.set_style(style.progress_chars("=> "));
+    }
+    pb
+}

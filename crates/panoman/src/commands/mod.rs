@@ -5,6 +5,8 @@ pub mod bench;
 pub mod components;
 pub mod demo;
 pub mod encode;
+pub mod eval;
+pub mod fit;
 pub mod generate;
 pub mod keypoints;
 pub mod pose;

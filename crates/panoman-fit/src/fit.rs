@@ -1,0 +1,714 @@
+//! Fitting PanoMan to sparse 3D constraints (paper §5, Eq. 6–11; algorithms.md §4).
+//!
+//! The unknowns are the vertices V and the parameters p = (α, β). The energy is the discrete
+//! shell toward the guidance pose `B_P(α, β)` plus constraints:
+//!
+//! ```text
+//! E(V, β) = Σ_e (ℓ_e(V)/ℓ*_e − 1)²  +  c_B² Σ_e ω_e² wrap(φ_e(V) − φ*_e)²            (Eq. 7–8)
+//!         + λ_K/ℓ̄² Σ_k w_k |Γ_k V − k̂_k|²                                          (keypoints)
+//!         + λ_H/ℓ̄² Σ_h |x_h − x̂_h|²                                                (handles)
+//!         + λ_I/ℓ̄² Σ_c (n̂_cᵀ(Σ_m b_cm x_m − p_c))²                                 (ICP)
+//! ℓ* = ℓ^r(α) ⊙ (1 + X̄_L + M_L β_L + R_L),  φ* = φ^r(α) + X̄_A + M_A β_A + R_A        (Eq. 3–5)
+//! ```
+//!
+//! It is minimised by alternation (algorithms.md §4.4, "simpler first version"): a V-step is a
+//! Levenberg–Marquardt solve of the shell energy with the constraints
+//! ([`panoman_mesh::shell::ShellSolver`], fixed sparsity pattern and symbolic factorization
+//! built once per model load, including the couplings of the keypoint regressors); a β-step is
+//! the least-squares projection of V's RL/RA onto the components with α fixed (the encoder's
+//! normal equations are factored once per model). Each sweep lowers the shell energy of the
+//! V-step for the new guidance; the V of the last V-step is the fit.
+//!
+//! Stages (PanoMan §5.3 with Total Capture's staging): the guidance pose from the initializer
+//! is rigidly placed on the keypoints; then torso keypoints only; then all keypoints with
+//! alternating sweeps; then, if a point cloud is given, ICP passes with re-matching (the
+//! damping is reset whenever correspondences change, since E is not monotone across
+//! re-matching).
+use crate::error::{FitError, Result};
+use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences};
+use panoman_human::keypoints::{KeypointGroup, KeypointsFile};
+use panoman_mesh::align::rigid_align;
+use panoman_mesh::geom::{V3, norm, sub};
+use panoman_mesh::shell::{Handle, PointConstraint, ShellOptions, ShellSolver, ShellTargets};
+use panoman_mesh::{RestGeometry, Rla, Topology};
+use panoman_model::model::{Evaluator, PanoManModel, Params};
+use serde::Serialize;
+use std::time::Instant;
+
+/// Names of the torso keypoints used by the first stage.
+pub const TORSO_KEYPOINTS: [&str; 6] = [
+    "neck",
+    "body_center",
+    "l_shoulder",
+    "r_shoulder",
+    "l_hip",
+    "r_hip",
+];
+
+/// Controls of a fit.
+#[derive(Clone, Debug)]
+pub struct FitOptions {
+    /// Bending weight c_B of Eq. 8 (dimensionless Fröhlich–Botsch ω_e). Default 1.
+    pub c_b: f64,
+    /// λ_K: keypoint weight (dimensionless; residuals are scaled by 1/ℓ̄). Default 10.
+    pub keypoint_weight: f64,
+    /// λ_H: handle weight. Default 10.
+    pub handle_weight: f64,
+    /// λ_I: ICP weight per matched point. Default 1.
+    pub icp_weight: f64,
+    /// LM iterations of the torso stage (Total Capture's first stage; the IK initializer
+    /// already stages torso → body → hands, so the default skips it). Default 0.
+    pub torso_iterations: usize,
+    /// LM iterations of each V-step in the keypoint and ICP stages. Default 4.
+    pub step_iterations: usize,
+    /// Alternating V-/β-sweeps of the keypoint stage. Default 1.
+    pub sweeps: usize,
+    /// ICP passes (re-matching each time; Total Capture does 2). Default 2.
+    pub icp_passes: usize,
+    /// Correspondence rejection.
+    pub icp: IcpOptions,
+    /// Initial LM damping μ of each V-step (relative to diag JᵀJ, algorithms.md §4.5).
+    /// Default 1e−2.
+    pub mu_init: f64,
+    /// Initial β_B from the motion MLP applied to the initializer's skeleton pose (PanoMan
+    /// §5.3: `β_B = β_MLP(θ)`) instead of the projection of the initializer's mesh; face and
+    /// hand blocks are still projected. With it the guidance pose follows the components'
+    /// linear blending rather than the rig's skinning (which collapses under large twists).
+    /// Default false.
+    pub motion_init: bool,
+    /// Use the correction MLP in the guidance pose. Default true.
+    pub correction: bool,
+    /// Start the V-steps from the initializer's mesh (e.g. the IK rig mesh, or the previous
+    /// frame) instead of the guidance pose `g(B_P(α, β))`. Default true.
+    pub start_from_init_mesh: bool,
+    /// λ_T: temporal term `λ_T/ℓ̄² Σ_v |x_v − x_v^prev|²` toward the previous frame's fit
+    /// (sequences only). Default 0.01.
+    pub temporal_vertex_weight: f64,
+    /// τ: temporal smoothing of β, `β ← (β_LS + τ β_prev)/(1 + τ)` after each β-step (the
+    /// minimiser of `|β − β_LS|² + τ|β − β_prev|²` in the encoder's metric up to its
+    /// conditioning; sequences only). Default 0.5.
+    pub temporal_beta: f64,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        FitOptions {
+            c_b: 1.0,
+            keypoint_weight: 10.0,
+            handle_weight: 10.0,
+            icp_weight: 1.0,
+            torso_iterations: 0,
+            step_iterations: 4,
+            sweeps: 1,
+            icp_passes: 2,
+            icp: IcpOptions::default(),
+            mu_init: 1e-2,
+            motion_init: false,
+            correction: true,
+            start_from_init_mesh: true,
+            temporal_vertex_weight: 0.01,
+            temporal_beta: 0.5,
+        }
+    }
+}
+
+/// A vertex handle as given by the user: dimensionless weight (multiplied by λ_H/ℓ̄²).
+#[derive(Clone, Debug, PartialEq, serde::Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct VertexHandle {
+    /// Vertex index in the model's template.
+    pub vertex: u32,
+    /// Target position (metres).
+    pub position: V3,
+    /// Relative weight (default 1).
+    #[serde(default = "one")]
+    pub weight: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// The constraint set of one fit.
+#[derive(Clone, Debug, Default)]
+pub struct Constraints {
+    /// Target keypoints (any subset of TC-127, with weights).
+    pub keypoints: KeypointsFile,
+    /// Vertex handles.
+    pub handles: Vec<VertexHandle>,
+    /// A point cloud (metres) and optional unit normals.
+    pub points: Option<(Vec<V3>, Option<Vec<V3>>)>,
+    /// Parameter edits: α (when non-empty) and the β blocks present here are held fixed.
+    pub fixed: Option<Params>,
+    /// The previous frame's fit (vertices and parameters) for the temporal terms of a
+    /// sequence (see [`FitOptions::temporal_vertex_weight`], [`FitOptions::temporal_beta`]).
+    pub previous: Option<(Vec<V3>, Params)>,
+}
+
+/// Where the fit starts: a mesh in template topology and its rest shape (from skeletal IK, or
+/// the previous frame of a sequence).
+#[derive(Clone, Debug)]
+pub struct Init {
+    /// Posed vertices.
+    pub posed: Vec<V3>,
+    /// Rest shape of the same person (α is its PCA projection).
+    pub rest: Vec<V3>,
+    /// The skeleton pose that produced `posed` (local Euler angles in radians by bone name),
+    /// for the motion MLP's β_B (see [`FitOptions::motion_init`]).
+    pub theta: Option<std::collections::BTreeMap<String, [f64; 3]>>,
+}
+
+/// Time, iterations and energies of one stage.
+#[derive(Clone, Debug, Serialize)]
+pub struct StageReport {
+    /// Stage name.
+    pub name: String,
+    /// Wall time (s).
+    pub seconds: f64,
+    /// LM iterations (linear solves) in the stage.
+    pub iterations: usize,
+    /// Accepted LM iterations.
+    pub accepted: usize,
+    /// Shell+constraint energy at the start and end of the stage's last V-step.
+    pub energy_start: f64,
+    /// See `energy_start`.
+    pub energy_end: f64,
+    /// ICP matching statistics (ICP stages).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub matches: Option<MatchStats>,
+}
+
+/// Residual of one keypoint group (mm).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct GroupResidual {
+    /// Keypoints of the group that were given.
+    pub n: usize,
+    /// Mean distance (mm).
+    pub mean_mm: f64,
+    /// Max distance (mm).
+    pub max_mm: f64,
+}
+
+/// Everything a fit reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct FitReport {
+    /// Per stage.
+    pub stages: Vec<StageReport>,
+    /// Keypoint residuals per group (body, face, left_hand, right_hand), after the fit.
+    pub keypoint_residuals: std::collections::BTreeMap<String, GroupResidual>,
+    /// Total time (s) of [`Fitter::fit`] (initializer excluded).
+    pub seconds: f64,
+}
+
+/// A fitted mesh with its parameters.
+#[derive(Clone, Debug)]
+pub struct FitResult {
+    /// Fitted vertices (template topology, metres).
+    pub vertices: Vec<V3>,
+    /// α, β of the last β-step and the rigid motion placing `B_P(α, β)` on the fit.
+    pub params: Params,
+    /// Report.
+    pub report: FitReport,
+}
+
+/// Per-model fitting state: the evaluator (g, encoder), the shell solver whose pattern
+/// includes the keypoint regressors' couplings, and the ICP incidence lists. Build once, fit
+/// many frames.
+pub struct Fitter<'m> {
+    model: &'m PanoManModel,
+    ev: Evaluator<'m>,
+    solver: ShellSolver,
+    vf: VertexFaces,
+    mean_edge: f64,
+}
+
+impl<'m> Fitter<'m> {
+    /// Builds the per-model state (topology, g, encoder, shell pattern + symbolic factor).
+    pub fn new(model: &'m PanoManModel) -> Result<Self> {
+        let ev = Evaluator::new(model)?;
+        let topo = ev.topology().clone();
+        let mut extra = Vec::new();
+        for row in &model.keypoints.rows {
+            for (p, &(a, _)) in row.iter().enumerate() {
+                for &(b, _) in &row[..p] {
+                    extra.push((a.min(b), a.max(b)));
+                }
+            }
+        }
+        extra.sort_unstable();
+        extra.dedup();
+        let solver = ShellSolver::with_extra_pairs(&topo, &extra)?;
+        let vf = VertexFaces::new(&topo);
+        let rest = model.rest_shape(&[]);
+        let rg = RestGeometry::new(&topo, &rest)?;
+        let mean_edge = rg.lengths.iter().sum::<f64>() / rg.lengths.len().max(1) as f64;
+        Ok(Fitter {
+            model,
+            ev,
+            solver,
+            vf,
+            mean_edge,
+        })
+    }
+
+    /// The model.
+    pub fn model(&self) -> &'m PanoManModel {
+        self.model
+    }
+
+    /// The template topology.
+    pub fn topology(&self) -> &Topology {
+        self.ev.topology()
+    }
+
+    /// Mean rest edge length ℓ̄ of the mean shape (m), the scale of the constraint weights.
+    pub fn mean_edge(&self) -> f64 {
+        self.mean_edge
+    }
+
+    /// Checks the constraint set against the model: keypoints the model defines, finite
+    /// values, handle vertices in range, a non-empty point cloud.
+    pub fn validate(&self, c: &Constraints) -> Result<()> {
+        c.keypoints
+            .validate()
+            .map_err(|e| FitError::Invalid(format!("keypoints: {e}")))?;
+        if c.keypoints.points.is_empty() && c.handles.is_empty() && c.points.is_none() {
+            return Err(FitError::Invalid(
+                "nothing to fit: no keypoints, handles or points".into(),
+            ));
+        }
+        let names = keypoint_names_of(self.model);
+        for &k in c.keypoints.points.keys() {
+            let name = &panoman_human::keypoints::keypoint_names()[k];
+            if !names.iter().any(|n| n == name) {
+                return Err(FitError::Invalid(format!(
+                    "keypoint '{name}' is not defined by the model"
+                )));
+            }
+        }
+        let nv = self.model.n_vertices;
+        for (i, h) in c.handles.iter().enumerate() {
+            if h.vertex as usize >= nv {
+                return Err(FitError::Invalid(format!(
+                    "handle {i}: vertex {} out of range (the model has {nv} vertices)",
+                    h.vertex
+                )));
+            }
+            if !h.position.iter().all(|x| x.is_finite()) || h.weight.is_nan() || h.weight < 0.0 {
+                return Err(FitError::Invalid(format!(
+                    "handle {i}: non-finite position or negative weight"
+                )));
+            }
+        }
+        if let Some((p, n)) = &c.points {
+            if p.is_empty() {
+                return Err(FitError::Invalid("the point cloud is empty".into()));
+            }
+            if let Some(i) = p.iter().position(|x| !x.iter().all(|c| c.is_finite())) {
+                return Err(FitError::Invalid(format!("point {i} is not finite")));
+            }
+            if let Some(n) = n
+                && n.len() != p.len()
+            {
+                return Err(FitError::Invalid(format!(
+                    "{} normals for {} points",
+                    n.len(),
+                    p.len()
+                )));
+            }
+        }
+        if let Some(f) = &c.fixed {
+            f.validate(self.model).map_err(FitError::Invalid)?;
+        }
+        if let Some((prev, _)) = &c.previous
+            && prev.len() != nv
+        {
+            return Err(FitError::Invalid(format!(
+                "previous frame has {} vertices, the model has {nv}",
+                prev.len()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Model row index of each given keypoint, with target and weight.
+    fn keypoint_terms(&self, c: &Constraints, only: Option<&[&str]>) -> Vec<(usize, V3, f64)> {
+        let all = panoman_human::keypoints::keypoint_names();
+        let mut out = Vec::new();
+        for (&k, &p) in &c.keypoints.points {
+            let name = &all[k];
+            if let Some(only) = only
+                && !only.contains(&name.as_str())
+            {
+                continue;
+            }
+            if let Some(r) = self.model.keypoints.names.iter().position(|n| n == name) {
+                out.push((r, p, c.keypoints.weight(k)));
+            }
+        }
+        out
+    }
+
+    fn constraint_targets(
+        &self,
+        targets: &mut ShellTargets,
+        kp: &[(usize, V3, f64)],
+        c: &Constraints,
+        opts: &FitOptions,
+    ) {
+        let l2 = self.mean_edge * self.mean_edge;
+        targets.points = kp
+            .iter()
+            .map(|&(r, p, w)| PointConstraint {
+                rows: self.model.keypoints.rows[r].clone(),
+                target: p,
+                weight: opts.keypoint_weight * w / l2,
+                normal: None,
+            })
+            .collect();
+        targets.handles = c
+            .handles
+            .iter()
+            .map(|h| Handle {
+                vertex: h.vertex,
+                position: h.position,
+                weight: opts.handle_weight * h.weight / l2,
+            })
+            .collect();
+        if let Some((prev, _)) = &c.previous
+            && opts.temporal_vertex_weight > 0.0
+        {
+            targets
+                .handles
+                .extend(prev.iter().enumerate().map(|(v, &p)| Handle {
+                    vertex: v as u32,
+                    position: p,
+                    weight: opts.temporal_vertex_weight / l2,
+                }));
+        }
+    }
+
+    /// Shell targets of the guidance pose `B_P(α, β)` on the rest shape `B_S(α)`.
+    fn guidance(
+        &self,
+        params: &Params,
+        rg: &RestGeometry,
+        x: &[V3],
+        opts: &FitOptions,
+    ) -> Result<ShellTargets> {
+        let rla = self.model.rla(params, opts.correction);
+        Ok(ShellTargets::from_rla(
+            self.ev.topology(),
+            rg,
+            &rla,
+            x,
+            opts.c_b,
+        )?)
+    }
+
+    /// β-step: least-squares β of V's RL/RA w.r.t. `B_S(α)`; fixed blocks keep their values.
+    fn beta_step(
+        &self,
+        x: &[V3],
+        rg: &RestGeometry,
+        params: &mut Params,
+        c: &Constraints,
+        opts: &FitOptions,
+    ) -> Result<()> {
+        let rla = Rla::compute(self.ev.topology(), rg, x)?;
+        self.ev.encode_beta(&rla, params, None)?;
+        if opts.correction && self.model.correction.is_some() {
+            for _ in 0..2 {
+                let r = self
+                    .model
+                    .correction_residual(params)
+                    .expect("has correction");
+                self.ev.encode_beta(&rla, params, Some(&r))?;
+            }
+        }
+        if let Some((_, prev)) = &c.previous
+            && opts.temporal_beta > 0.0
+        {
+            let tau = opts.temporal_beta;
+            for (name, b) in params.beta.iter_mut() {
+                if let Some(pb) = prev.beta.get(name)
+                    && pb.len() == b.len()
+                {
+                    for (x, p) in b.iter_mut().zip(pb) {
+                        *x = (*x + tau * p) / (1.0 + tau);
+                    }
+                }
+            }
+        }
+        if let Some(f) = &c.fixed {
+            for (name, b) in &f.beta {
+                if !b.is_empty() {
+                    params.beta.insert(name.clone(), b.clone());
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Fits the constraints from `init` (see the module docs for the stages).
+    pub fn fit(&mut self, c: &Constraints, init: &Init, opts: &FitOptions) -> Result<FitResult> {
+        self.validate(c)?;
+        let nv = self.model.n_vertices;
+        if init.posed.len() != nv || init.rest.len() != nv {
+            return Err(FitError::Invalid(format!(
+                "initial meshes have {} / {} vertices, the model has {nv}",
+                init.posed.len(),
+                init.rest.len()
+            )));
+        }
+        let t0 = Instant::now();
+        let mut stages = Vec::new();
+        // Initial parameters: α from the rest shape, β by projection of the initial mesh.
+        let t = Instant::now();
+        let mut params = self.ev.encode(&init.posed, Some(&init.rest), false)?;
+        if let Some(f) = &c.fixed
+            && !f.alpha.is_empty()
+        {
+            params.alpha = f.alpha.clone();
+        }
+        let rest = self.model.rest_shape(&params.alpha);
+        let rg = RestGeometry::new(self.ev.topology(), &rest)?;
+        self.beta_step(&init.posed, &rg, &mut params, c, opts)?;
+        if opts.motion_init
+            && let Some(theta) = &init.theta
+            && let Some((bl, ba)) = self.model.beta_from_theta(&|b: &str| theta.get(b).copied())
+        {
+            let fixed = |name: &str| {
+                c.fixed
+                    .as_ref()
+                    .is_some_and(|f| f.beta.get(name).is_some_and(|b| !b.is_empty()))
+            };
+            for (b, v) in [(0usize, bl), (3, ba)] {
+                let name = self.model.blocks[b].name.clone();
+                if !fixed(&name) {
+                    params.beta.insert(name, v);
+                }
+            }
+        }
+        let all_kp = self.keypoint_terms(c, None);
+        let mut x = if opts.start_from_init_mesh {
+            init.posed.clone()
+        } else {
+            let mut p0 = params.clone();
+            p0.rotation = [0.0; 3];
+            p0.translation = [0.0; 3];
+            let mut g = self.ev.pose(&p0, opts.correction)?;
+            // Rigid placement on the keypoints (all given; the initial mesh when none).
+            let (a, b): (Vec<V3>, Vec<V3>) = if all_kp.len() >= 3 {
+                let k = self.model.keypoints.evaluate(&g);
+                all_kp.iter().map(|&(r, p, _)| (k[r], p)).unzip()
+            } else {
+                (g.clone(), init.posed.clone())
+            };
+            let m = rigid_align(&a, &b, None);
+            m.apply_all(&mut g);
+            g
+        };
+        stages.push(StageReport {
+            name: "init".into(),
+            seconds: t.elapsed().as_secs_f64(),
+            iterations: 0,
+            accepted: 0,
+            energy_start: 0.0,
+            energy_end: 0.0,
+            matches: None,
+        });
+        // Stage 1: torso keypoints.
+        let torso = self.keypoint_terms(c, Some(&TORSO_KEYPOINTS));
+        if !torso.is_empty() && opts.torso_iterations > 0 {
+            let t = Instant::now();
+            let mut targets = self.guidance(&params, &rg, &x, opts)?;
+            self.constraint_targets(&mut targets, &torso, c, opts);
+            let rep = self.solver.solve(
+                &targets,
+                &mut x,
+                &ShellOptions {
+                    max_iterations: opts.torso_iterations,
+                    mu_init: opts.mu_init,
+                    ..Default::default()
+                },
+            )?;
+            stages.push(StageReport {
+                name: "torso".into(),
+                seconds: t.elapsed().as_secs_f64(),
+                iterations: rep.iterations,
+                accepted: rep.accepted,
+                energy_start: rep.energies[0],
+                energy_end: *rep.energies.last().unwrap_or(&0.0),
+                matches: None,
+            });
+        }
+        // Stage 2: all keypoints, alternating V- and β-steps.
+        {
+            let t = Instant::now();
+            let mut its = 0;
+            let mut acc = 0;
+            let (mut e0, mut e1) = (0.0, 0.0);
+            for sweep in 0..opts.sweeps.max(1) {
+                if sweep > 0 {
+                    self.beta_step(&x, &rg, &mut params, c, opts)?;
+                }
+                let mut targets = self.guidance(&params, &rg, &x, opts)?;
+                self.constraint_targets(&mut targets, &all_kp, c, opts);
+                let rep = self.solver.solve(
+                    &targets,
+                    &mut x,
+                    &ShellOptions {
+                        max_iterations: opts.step_iterations,
+                        mu_init: opts.mu_init,
+                        ..Default::default()
+                    },
+                )?;
+                its += rep.iterations;
+                acc += rep.accepted;
+                e0 = rep.energies[0];
+                e1 = *rep.energies.last().unwrap_or(&0.0);
+            }
+            stages.push(StageReport {
+                name: "keypoints".into(),
+                seconds: t.elapsed().as_secs_f64(),
+                iterations: its,
+                accepted: acc,
+                energy_start: e0,
+                energy_end: e1,
+                matches: None,
+            });
+        }
+        // Stage 3: ICP.
+        if let Some((pts, nrm)) = &c.points {
+            let l2 = self.mean_edge * self.mean_edge;
+            for pass in 0..opts.icp_passes {
+                let t = Instant::now();
+                self.beta_step(&x, &rg, &mut params, c, opts)?;
+                let mut targets = self.guidance(&params, &rg, &x, opts)?;
+                self.constraint_targets(&mut targets, &all_kp, c, opts);
+                let (cons, stats) = correspondences(
+                    self.ev.topology(),
+                    &self.vf,
+                    &x,
+                    pts,
+                    nrm.as_deref(),
+                    opts.icp_weight / l2,
+                    &opts.icp,
+                );
+                targets.points.extend(cons);
+                let rep = self.solver.solve(
+                    &targets,
+                    &mut x,
+                    &ShellOptions {
+                        max_iterations: opts.step_iterations,
+                        mu_init: opts.mu_init,
+                        ..Default::default()
+                    },
+                )?;
+                stages.push(StageReport {
+                    name: format!("icp{}", pass + 1),
+                    seconds: t.elapsed().as_secs_f64(),
+                    iterations: rep.iterations,
+                    accepted: rep.accepted,
+                    energy_start: rep.energies[0],
+                    energy_end: *rep.energies.last().unwrap_or(&0.0),
+                    matches: Some(stats),
+                });
+            }
+        }
+        // Final parameters and the rigid motion placing B_P(α, β) on the fit.
+        let t = Instant::now();
+        self.beta_step(&x, &rg, &mut params, c, opts)?;
+        params.rotation = [0.0; 3];
+        params.translation = [0.0; 3];
+        let guide = self.ev.pose(&params, opts.correction)?;
+        let m = rigid_align(&guide, &x, None);
+        params.rotation = rotation_vector(&m.r);
+        params.translation = m.t;
+        stages.push(StageReport {
+            name: "params".into(),
+            seconds: t.elapsed().as_secs_f64(),
+            iterations: 0,
+            accepted: 0,
+            energy_start: 0.0,
+            energy_end: 0.0,
+            matches: None,
+        });
+        let report = FitReport {
+            stages,
+            keypoint_residuals: keypoint_residuals(self.model, &c.keypoints, &x),
+            seconds: t0.elapsed().as_secs_f64(),
+        };
+        Ok(FitResult {
+            vertices: x,
+            params,
+            report,
+        })
+    }
+}
+
+/// TC-127 names the model defines keypoint rows for.
+fn keypoint_names_of(model: &PanoManModel) -> &[String] {
+    &model.keypoints.names
+}
+
+/// Residual per keypoint group (mm) of the model's keypoints on `x` against the targets.
+pub fn keypoint_residuals(
+    model: &PanoManModel,
+    kp: &KeypointsFile,
+    x: &[V3],
+) -> std::collections::BTreeMap<String, GroupResidual> {
+    let all = panoman_human::keypoints::keypoint_names();
+    let values = model.keypoints.evaluate(x);
+    let mut out: std::collections::BTreeMap<String, GroupResidual> = Default::default();
+    for (&k, &p) in &kp.points {
+        let Some(r) = model.keypoints.names.iter().position(|n| n == &all[k]) else {
+            continue;
+        };
+        let d = 1e3 * norm(sub(values[r], p));
+        let g = out
+            .entry(KeypointGroup::of(k).name().to_string())
+            .or_default();
+        g.n += 1;
+        g.mean_mm += d;
+        g.max_mm = g.max_mm.max(d);
+    }
+    for g in out.values_mut() {
+        g.mean_mm /= g.n.max(1) as f64;
+    }
+    out
+}
+
+/// The rotation vector (axis·angle, radians) of a rotation matrix: the SO(3) logarithm,
+/// `θ = atan2(|w|, (tr R − 1)/2)` with `w = vee(R − Rᵀ)/2`; near θ = π the axis is taken from
+/// the largest diagonal entry of `(R + I)/2`.
+pub fn rotation_vector(r: &[[f64; 3]; 3]) -> V3 {
+    let w = [
+        0.5 * (r[2][1] - r[1][2]),
+        0.5 * (r[0][2] - r[2][0]),
+        0.5 * (r[1][0] - r[0][1]),
+    ];
+    let s = norm(w);
+    let c = 0.5 * (r[0][0] + r[1][1] + r[2][2] - 1.0);
+    let theta = s.atan2(c);
+    if s < 1e-12 && c > 0.0 {
+        return w; // θ ≈ 0: the vector is w itself to first order
+    }
+    if s > 1e-6 {
+        return [w[0] * theta / s, w[1] * theta / s, w[2] * theta / s];
+    }
+    // θ ≈ π: R ≈ 2aaᵀ − I.
+    let i = (0..3)
+        .max_by(|&a, &b| r[a][a].total_cmp(&r[b][b]))
+        .expect("three");
+    let mut a = [0.0; 3];
+    a[i] = (0.5 * (r[i][i] + 1.0)).max(0.0).sqrt();
+    for j in 0..3 {
+        if j != i {
+            a[j] = 0.5 * (r[j][i] + r[i][j]) / (2.0 * a[i]).max(1e-300) * 1.0;
+        }
+    }
+    let n = norm(a).max(1e-300);
+    [a[0] / n * theta, a[1] / n * theta, a[2] / n * theta]
+}

@@ -1,0 +1,189 @@
+//! Point-cloud correspondences for ICP (algorithms.md §4.2, "ICP"): each scan point is matched
+//! to its closest point on the current surface (nearest vertex by kd-tree, then the closest
+//! point on the triangles around it), giving a point-to-plane constraint
+//! `√w n̂_fᵀ(Σ_m b_m x_m − p)` on the triangle's barycentric point. Pairs farther than
+//! `max_distance`, and (when the scan has normals) pairs whose normals differ by more than
+//! `max_normal_angle_deg`, are rejected.
+use kiddo::{KdTree, SquaredEuclidean};
+use panoman_mesh::Topology;
+use panoman_mesh::geom::{V3, add, cross, dot, norm, scale, sub};
+use panoman_mesh::shell::PointConstraint;
+
+/// Matching controls.
+#[derive(Clone, Debug)]
+pub struct IcpOptions {
+    /// Pairs farther apart than this are dropped (metres). Default 0.05.
+    pub max_distance: f64,
+    /// With scan normals, pairs whose normals differ by more than this are dropped (degrees).
+    /// Default 60.
+    pub max_normal_angle_deg: f64,
+}
+
+impl Default for IcpOptions {
+    fn default() -> Self {
+        IcpOptions {
+            max_distance: 0.05,
+            max_normal_angle_deg: 60.0,
+        }
+    }
+}
+
+/// Per-vertex incident faces of a topology (CSR), built once per model load.
+#[derive(Clone, Debug)]
+pub struct VertexFaces {
+    offsets: Vec<u32>,
+    faces: Vec<u32>,
+}
+
+impl VertexFaces {
+    /// Incidence lists of `topo`.
+    pub fn new(topo: &Topology) -> Self {
+        let mut offsets = vec![0u32; topo.n_vertices + 1];
+        for f in &topo.faces {
+            for &v in f {
+                offsets[v as usize + 1] += 1;
+            }
+        }
+        for v in 0..topo.n_vertices {
+            offsets[v + 1] += offsets[v];
+        }
+        let mut fill = offsets.clone();
+        let mut faces = vec![0u32; topo.faces.len() * 3];
+        for (fi, f) in topo.faces.iter().enumerate() {
+            for &v in f {
+                faces[fill[v as usize] as usize] = fi as u32;
+                fill[v as usize] += 1;
+            }
+        }
+        VertexFaces { offsets, faces }
+    }
+
+    /// Faces around vertex `v`.
+    pub fn of(&self, v: u32) -> &[u32] {
+        &self.faces[self.offsets[v as usize] as usize..self.offsets[v as usize + 1] as usize]
+    }
+}
+
+/// Closest point of triangle (a, b, c) to p: returns barycentric weights (Ericson's region
+/// tests: vertex, edge or interior Voronoi region).
+pub fn closest_on_triangle(p: V3, a: V3, b: V3, c: V3) -> [f64; 3] {
+    let ab = sub(b, a);
+    let ac = sub(c, a);
+    let ap = sub(p, a);
+    let d1 = dot(ab, ap);
+    let d2 = dot(ac, ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return [1.0, 0.0, 0.0];
+    }
+    let bp = sub(p, b);
+    let d3 = dot(ab, bp);
+    let d4 = dot(ac, bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return [0.0, 1.0, 0.0];
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return [1.0 - v, v, 0.0];
+    }
+    let cp = sub(p, c);
+    let d5 = dot(ab, cp);
+    let d6 = dot(ac, cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return [0.0, 0.0, 1.0];
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return [1.0 - w, 0.0, w];
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return [0.0, 1.0 - w, w];
+    }
+    let denom = 1.0 / (va + vb + vc);
+    let v = vb * denom;
+    let w = vc * denom;
+    [1.0 - v - w, v, w]
+}
+
+/// Outcome of one matching pass.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct MatchStats {
+    /// Scan points matched.
+    pub matched: usize,
+    /// Dropped as too far.
+    pub rejected_distance: usize,
+    /// Dropped for normals more than the threshold apart.
+    pub rejected_normal: usize,
+    /// Mean distance of the kept pairs (mm).
+    pub mean_distance_mm: f64,
+}
+
+/// Point-to-plane constraints of `points` (with optional unit `normals`) against the surface
+/// `x` of `topo`, each with weight `weight` (units 1/length²).
+pub fn correspondences(
+    topo: &Topology,
+    vf: &VertexFaces,
+    x: &[V3],
+    points: &[V3],
+    normals: Option<&[V3]>,
+    weight: f64,
+    opts: &IcpOptions,
+) -> (Vec<PointConstraint>, MatchStats) {
+    let mut tree: KdTree<f64, 3> = KdTree::with_capacity(x.len());
+    for (v, p) in x.iter().enumerate() {
+        tree.add(p, v as u64);
+    }
+    let cos_max = opts.max_normal_angle_deg.to_radians().cos();
+    let mut out = Vec::with_capacity(points.len());
+    let mut st = MatchStats::default();
+    let mut dsum = 0.0;
+    for (i, &p) in points.iter().enumerate() {
+        let nn = tree.nearest_one::<SquaredEuclidean>(&p);
+        let v = nn.item as u32;
+        let mut best: Option<(f64, u32, [f64; 3])> = None;
+        for &f in vf.of(v) {
+            let [a, b, c] = topo.faces[f as usize];
+            let (pa, pb, pc) = (x[a as usize], x[b as usize], x[c as usize]);
+            let bc = closest_on_triangle(p, pa, pb, pc);
+            let q = add(add(scale(pa, bc[0]), scale(pb, bc[1])), scale(pc, bc[2]));
+            let d = norm(sub(p, q));
+            if best.is_none_or(|(bd, _, _)| d < bd) {
+                best = Some((d, f, bc));
+            }
+        }
+        let Some((d, f, bc)) = best else { continue };
+        if d > opts.max_distance {
+            st.rejected_distance += 1;
+            continue;
+        }
+        let [a, b, c] = topo.faces[f as usize];
+        let nf = cross(
+            sub(x[b as usize], x[a as usize]),
+            sub(x[c as usize], x[a as usize]),
+        );
+        let ln = norm(nf);
+        if ln == 0.0 {
+            continue;
+        }
+        let nf = scale(nf, 1.0 / ln);
+        if let Some(ns) = normals
+            && dot(ns[i], nf) < cos_max
+        {
+            st.rejected_normal += 1;
+            continue;
+        }
+        dsum += d;
+        st.matched += 1;
+        out.push(PointConstraint {
+            rows: vec![(a, bc[0]), (b, bc[1]), (c, bc[2])],
+            target: p,
+            weight,
+            normal: Some(nf),
+        });
+    }
+    st.mean_distance_mm = 1e3 * dsum / st.matched.max(1) as f64;
+    (out, st)
+}

@@ -1,0 +1,16 @@
+//! # panoman-fit
+//!
+//! Fitting PanoMan to sparse 3D data (paper §5, Total Capture's staging; algorithms.md §4):
+//! the discrete-shell energy toward the model's guidance pose with keypoint, vertex-handle and
+//! point-cloud (ICP) constraints, minimised by Levenberg–Marquardt V-steps alternating with
+//! least-squares β-steps ([`fit`]); closest-point matching ([`icp`]).
+
+pub mod error;
+pub mod fit;
+pub mod icp;
+pub mod pipeline;
+
+pub use error::{FitError, Result};
+pub use fit::{Constraints, FitOptions, FitReport, FitResult, Fitter, Init, VertexHandle};
+pub use pipeline::{Rig, fit_frame, ik_fit, init_of};
+pub mod twist;

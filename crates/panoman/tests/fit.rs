@@ -1,0 +1,409 @@
+//! Acceptance tests of the fitting stage on the small preset (CI configuration): a held-out
+//! person fitted from exact TC-127 keypoints (PanoMan and the LBS baseline), keypoints + a
+//! partial noisy point cloud (ICP), contradictory constraints, sequences, and bad input through
+//! the binary.
+
+use panoman_fit::fit::{FitOptions, keypoint_residuals};
+use panoman_fit::{Constraints, FitError, Fitter, Init, Rig, fit_frame, ik_fit};
+use panoman_human::keypoints::{KeypointsFile, keypoint_index};
+use panoman_mesh::geom::{V3, norm, sub};
+use panoman_model::model::PanoManModel;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+fn panoman(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_panoman"))
+        .args(args)
+        .output()
+        .expect("run panoman")
+}
+
+fn ok(o: std::process::Output) -> String {
+    assert!(
+        o.status.success(),
+        "stdout {}\nstderr {}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8(o.stdout).unwrap()
+}
+
+fn one_line_error(o: &std::process::Output, needle: &str) {
+    assert!(!o.status.success(), "must fail");
+    let err = String::from_utf8_lossy(&o.stderr);
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "one line expected: {err:?}");
+    assert!(
+        lines[0].starts_with("error: ") && lines[0].contains(needle),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+/// A small dataset and a model trained on it (shared by the tests of this file).
+fn trained() -> &'static (PathBuf, PathBuf, PathBuf) {
+    static CELL: OnceLock<(PathBuf, PathBuf, PathBuf)> = OnceLock::new();
+    CELL.get_or_init(|| {
+        panoman_human::assets::ensure_default().expect("assets");
+        let d = std::env::temp_dir().join(format!("panoman-fit-test-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        let data = d.join("H");
+        ok(panoman(&[
+            "synth",
+            "--preset",
+            "small",
+            "--seed",
+            "5",
+            "--out",
+            data.to_str().unwrap(),
+        ]));
+        let model = d.join("M.safetensors");
+        ok(panoman(&[
+            "train",
+            "--data",
+            data.to_str().unwrap(),
+            "--preset",
+            "small",
+            "--out",
+            model.to_str().unwrap(),
+        ]));
+        (d, data, model)
+    })
+}
+
+/// Held-out body-pose rows: (posed, rest) vertices.
+fn held_out(data: &Path, n: usize) -> Vec<(Vec<V3>, Vec<V3>)> {
+    let ds = panoman_human::dataset::Dataset::open(data).unwrap();
+    let rows: Vec<usize> = (0..ds.n_rows)
+        .filter(|&r| ds.kind[r] == 1 && ds.held_out.contains(&ds.identity[r]))
+        .take(n)
+        .collect();
+    assert!(!rows.is_empty());
+    let v = |row: usize| -> Vec<V3> {
+        ds.vertices(row)
+            .unwrap()
+            .iter()
+            .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+            .collect()
+    };
+    rows.iter()
+        .map(|&r| (v(r), v(ds.rest_of[r] as usize)))
+        .collect()
+}
+
+fn mean_error(a: &[V3], b: &[V3]) -> f64 {
+    a.iter().zip(b).map(|(p, q)| norm(sub(*p, *q))).sum::<f64>() / a.len() as f64
+}
+
+#[test]
+fn held_out_people_from_exact_keypoints() {
+    let (_, data, model_path) = trained();
+    let model = PanoManModel::load(model_path).unwrap();
+    let assets = panoman_human::assets::ensure_default().unwrap();
+    let rig = Rig::load(&assets, &model).unwrap();
+    let ik = rig.ik_solver().unwrap();
+    let mut fitter = Fitter::new(&model).unwrap();
+    let cases = held_out(data, 3);
+    let (mut e_pm, mut e_lbs) = (0.0, 0.0);
+    for (truth, _) in &cases {
+        let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
+        let c = Constraints {
+            keypoints: kp.clone(),
+            ..Default::default()
+        };
+        let (ikr, fit) = fit_frame(
+            &rig,
+            &ik,
+            &mut fitter,
+            &c,
+            &Default::default(),
+            &FitOptions::default(),
+            None,
+        )
+        .unwrap();
+        let (ep, el) = (
+            mean_error(&fit.vertices, truth),
+            mean_error(&ikr.posed, truth),
+        );
+        let res = keypoint_residuals(&model, &kp, &fit.vertices);
+        println!(
+            "panoman {:.2} mm, lbs {:.2} mm, keypoint residuals {:?}",
+            ep * 1e3,
+            el * 1e3,
+            res.iter()
+                .map(|(k, g)| format!("{k} {:.2}", g.mean_mm))
+                .collect::<Vec<_>>()
+        );
+        e_pm += ep / cases.len() as f64;
+        e_lbs += el / cases.len() as f64;
+        // Exact keypoints are met closely: the keypoint terms dominate the shell's pull.
+        assert!(res["body"].mean_mm < 10.0, "{res:?}");
+        // The report covers the stages that ran.
+        let names: Vec<&str> = fit.report.stages.iter().map(|s| s.name.as_str()).collect();
+        assert!(names.contains(&"keypoints"), "{names:?}");
+    }
+    println!(
+        "mean per-vertex error: panoman {:.2} mm, lbs {:.2} mm",
+        e_pm * 1e3,
+        e_lbs * 1e3
+    );
+    // The issue's 10 mm bound on the full template, scaled for the small topology, whose
+    // keypoint regressors alone are off by ~4 mm (body) and whose 1,229 vertices carry a far
+    // coarser model (25 body components): 25 mm.
+    assert!(e_pm < 0.025, "panoman mean error {:.2} mm", e_pm * 1e3);
+}
+
+#[test]
+fn point_cloud_with_missing_part_and_noise_helps() {
+    let (_, data, model_path) = trained();
+    let model = PanoManModel::load(model_path).unwrap();
+    let assets = panoman_human::assets::ensure_default().unwrap();
+    let rig = Rig::load(&assets, &model).unwrap();
+    let ik = rig.ik_solver().unwrap();
+    let mut fitter = Fitter::new(&model).unwrap();
+    let (truth, _) = &held_out(data, 1)[0];
+    // A scan: every vertex of the front-facing 70 % (by height order of a plane cut),
+    // displaced by 2 mm Gaussian noise (deterministic generator).
+    let mut s = 0x9e3779b97f4a7c15u64;
+    let mut gauss = || {
+        let mut u = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (a, b) = (u().max(1e-300), u());
+        (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+    };
+    let mut ys: Vec<f64> = truth.iter().map(|p| p[1]).collect();
+    ys.sort_by(f64::total_cmp);
+    let cut = ys[(0.7 * ys.len() as f64) as usize];
+    let points: Vec<V3> = truth
+        .iter()
+        .filter(|p| p[1] <= cut)
+        .map(|p| {
+            [
+                p[0] + 0.002 * gauss(),
+                p[1] + 0.002 * gauss(),
+                p[2] + 0.002 * gauss(),
+            ]
+        })
+        .collect();
+    let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
+    let c = Constraints {
+        keypoints: kp,
+        ..Default::default()
+    };
+    let ikr = ik_fit(&ik, &c, &Default::default()).unwrap();
+    let init = Init {
+        posed: ikr.posed.clone(),
+        rest: ikr.rest.clone(),
+        theta: None,
+    };
+    let base = fitter.fit(&c, &init, &FitOptions::default()).unwrap();
+    let with_points = Constraints {
+        points: Some((points, None)),
+        ..c.clone()
+    };
+    let fit = fitter
+        .fit(&with_points, &init, &FitOptions::default())
+        .unwrap();
+    let (e0, e1) = (
+        mean_error(&base.vertices, truth),
+        mean_error(&fit.vertices, truth),
+    );
+    println!(
+        "keypoints only {:.2} mm, with points {:.2} mm",
+        e0 * 1e3,
+        e1 * 1e3
+    );
+    let icp: Vec<_> = fit
+        .report
+        .stages
+        .iter()
+        .filter(|s| s.name.starts_with("icp"))
+        .collect();
+    assert_eq!(icp.len(), 2, "two ICP passes");
+    assert!(icp[0].matches.as_ref().unwrap().matched > 0);
+    assert!(e1 < e0, "the scan must help: {e0} → {e1}");
+}
+
+#[test]
+fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
+    let (_, data, model_path) = trained();
+    let model = PanoManModel::load(model_path).unwrap();
+    let assets = panoman_human::assets::ensure_default().unwrap();
+    let rig = Rig::load(&assets, &model).unwrap();
+    let ik = rig.ik_solver().unwrap();
+    let mut fitter = Fitter::new(&model).unwrap();
+    let (truth, rest) = &held_out(data, 1)[0];
+    let mut kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
+    // The left wrist 1 m away from the elbow: unreachable.
+    let w = keypoint_index("l_wrist").unwrap();
+    kp.points.get_mut(&w).unwrap()[0] += 1.0;
+    let c = Constraints {
+        keypoints: kp,
+        ..Default::default()
+    };
+    let (_, fit) = fit_frame(
+        &rig,
+        &ik,
+        &mut fitter,
+        &c,
+        &Default::default(),
+        &FitOptions::default(),
+        None,
+    )
+    .expect("an unreachable target is not an error");
+    assert!(fit.vertices.iter().flatten().all(|x| x.is_finite()));
+    assert!(fit.report.keypoint_residuals["body"].max_mm > 100.0);
+
+    let init = Init {
+        posed: truth.clone(),
+        rest: rest.clone(),
+        theta: None,
+    };
+    let empty = Constraints {
+        points: Some((Vec::new(), None)),
+        ..c.clone()
+    };
+    let e = fitter
+        .fit(&empty, &init, &FitOptions::default())
+        .unwrap_err();
+    assert!(matches!(e, FitError::Invalid(_)) && e.to_string().contains("empty"));
+    let nothing = Constraints::default();
+    assert!(fitter.fit(&nothing, &init, &FitOptions::default()).is_err());
+    let wrong = Init {
+        posed: truth[..10].to_vec(),
+        rest: rest.clone(),
+        theta: None,
+    };
+    let e = fitter.fit(&c, &wrong, &FitOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("vertices"), "{e}");
+}
+
+#[test]
+fn cli_fit_baseline_track_and_bad_input() {
+    let (dir, data, model_path) = trained();
+    let model = PanoManModel::load(model_path).unwrap();
+    let m = model_path.to_str().unwrap();
+    let cases = held_out(data, 3);
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    for (k, (truth, _)) in cases.iter().enumerate() {
+        KeypointsFile::from_all(&model.keypoints.evaluate(truth))
+            .write(&frames.join(format!("f{k:03}.json")))
+            .unwrap();
+    }
+    let k0 = frames.join("f000.json");
+    let k0s = k0.to_str().unwrap();
+    let out = dir.join("fit");
+    ok(panoman(&[
+        "fit",
+        "--model",
+        m,
+        "--keypoints",
+        k0s,
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    let rep: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(rep["method"], "panoman");
+    assert!(
+        rep["keypoint_residuals"]["body"]["mean_mm"]
+            .as_f64()
+            .unwrap()
+            < 10.0
+    );
+    assert!(rep["stages"].as_array().unwrap().len() >= 3);
+    let fitted = panoman_mesh::io::read_mesh(&out.join("mesh.obj")).unwrap();
+    assert!(mean_error(&fitted.positions, &cases[0].0) < 0.03);
+    assert!(out.join("params.json").exists());
+    // The fitted parameters pose through the model.
+    ok(panoman(&[
+        "pose",
+        "--model",
+        m,
+        "--params",
+        out.join("params.json").to_str().unwrap(),
+        "--out",
+        dir.join("posed.obj").to_str().unwrap(),
+    ]));
+
+    let lbs = dir.join("lbs");
+    ok(panoman(&[
+        "fit",
+        "--model",
+        m,
+        "--keypoints",
+        k0s,
+        "--baseline",
+        "lbs",
+        "--out",
+        lbs.to_str().unwrap(),
+    ]));
+    let rep: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(lbs.join("report.json")).unwrap()).unwrap();
+    assert_eq!(rep["method"], "lbs");
+
+    let track = dir.join("track");
+    ok(panoman(&[
+        "track",
+        "--model",
+        m,
+        "--frames",
+        frames.to_str().unwrap(),
+        "--out",
+        track.to_str().unwrap(),
+    ]));
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(track.join("summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(s["frames"], 3);
+    for k in 0..3 {
+        assert!(track.join(format!("f{k:03}.obj")).exists());
+    }
+
+    // Bad input: one line, non-zero exit, nothing written.
+    let bad = dir.join("bad");
+    std::fs::create_dir_all(&bad).unwrap();
+    let unknown = bad.join("unknown.json");
+    std::fs::write(&unknown, r#"{"keypoints": {"l_elbw": [0, 0, 1]}}"#).unwrap();
+    let nan = bad.join("nan.json");
+    std::fs::write(&nan, r#"{"keypoints": {"l_elbow": [0, 1e999, 1]}}"#).unwrap();
+    let empty_ply = bad.join("empty.ply");
+    std::fs::write(
+        &empty_ply,
+        "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
+    )
+    .unwrap();
+    let wrong_params = bad.join("p.json");
+    std::fs::write(&wrong_params, r#"{"beta": {"body_l": [1, 2]}}"#).unwrap();
+    let o = bad.join("out");
+    let os = o.to_str().unwrap();
+    for (args, needle) in [
+        (vec!["--keypoints", unknown.to_str().unwrap()], "l_elbw"),
+        (vec!["--keypoints", nan.to_str().unwrap()], "nan.json"),
+        (
+            vec!["--keypoints", k0s, "--points", empty_ply.to_str().unwrap()],
+            "empty",
+        ),
+        (
+            vec![
+                "--keypoints",
+                k0s,
+                "--params",
+                wrong_params.to_str().unwrap(),
+            ],
+            "body_l",
+        ),
+    ] {
+        let mut a = vec!["fit", "--model", m, "--out", os];
+        a.extend(args);
+        one_line_error(&panoman(&a), needle);
+        assert!(!o.join("mesh.obj").exists());
+    }
+}
