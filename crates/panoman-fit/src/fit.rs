@@ -67,6 +67,9 @@ pub struct FitOptions {
     pub icp_passes: usize,
     /// Correspondence rejection.
     pub icp: IcpOptions,
+    /// Numeric Cholesky factorizations on the rayon pool (faer's parallel supernodal
+    /// factorization); sequential otherwise. Default false: measured faster on 2 cores.
+    pub parallel_factor: bool,
     /// Initial LM damping μ of each V-step (relative to diag JᵀJ, algorithms.md §4.5).
     /// Default 1e−2.
     pub mu_init: f64,
@@ -103,12 +106,23 @@ impl Default for FitOptions {
             icp_passes: 2,
             icp: IcpOptions::default(),
             mu_init: 1e-2,
+            parallel_factor: false,
             motion_init: false,
             correction: true,
             start_from_init_mesh: true,
             temporal_vertex_weight: 0.01,
             temporal_beta: 0.5,
         }
+    }
+}
+
+/// Options for warm-started frames of a sequence: the IK mesh of a warm-started IK is already
+/// close, so the V-step takes 2 LM iterations (measured on a 24-frame clip, full template:
+/// 616 ms per frame with 2, 779 ms with 4, the same error to 0.05 mm).
+pub fn warm_fit_options() -> FitOptions {
+    FitOptions {
+        step_iterations: 2,
+        ..FitOptions::default()
     }
 }
 
@@ -530,6 +544,7 @@ impl<'m> Fitter<'m> {
                 &ShellOptions {
                     max_iterations: opts.torso_iterations,
                     mu_init: opts.mu_init,
+                    parallel_factor: opts.parallel_factor,
                     ..Default::default()
                 },
             )?;
@@ -561,6 +576,7 @@ impl<'m> Fitter<'m> {
                     &ShellOptions {
                         max_iterations: opts.step_iterations,
                         mu_init: opts.mu_init,
+                        parallel_factor: opts.parallel_factor,
                         ..Default::default()
                     },
                 )?;
@@ -603,6 +619,7 @@ impl<'m> Fitter<'m> {
                     &ShellOptions {
                         max_iterations: opts.step_iterations,
                         mu_init: opts.mu_init,
+                        parallel_factor: opts.parallel_factor,
                         ..Default::default()
                     },
                 )?;

@@ -38,18 +38,23 @@ pub struct VertexFaces {
 impl VertexFaces {
     /// Incidence lists of `topo`.
     pub fn new(topo: &Topology) -> Self {
-        let mut offsets = vec![0u32; topo.n_vertices + 1];
-        for f in &topo.faces {
+        VertexFaces::from_faces(topo.n_vertices, &topo.faces)
+    }
+
+    /// Incidence lists of the triangles `tris` over `n_vertices` vertices.
+    pub fn from_faces(n_vertices: usize, tris: &[[u32; 3]]) -> Self {
+        let mut offsets = vec![0u32; n_vertices + 1];
+        for f in tris {
             for &v in f {
                 offsets[v as usize + 1] += 1;
             }
         }
-        for v in 0..topo.n_vertices {
+        for v in 0..n_vertices {
             offsets[v + 1] += offsets[v];
         }
         let mut fill = offsets.clone();
-        let mut faces = vec![0u32; topo.faces.len() * 3];
-        for (fi, f) in topo.faces.iter().enumerate() {
+        let mut faces = vec![0u32; tris.len() * 3];
+        for (fi, f) in tris.iter().enumerate() {
             for &v in f {
                 faces[fill[v as usize] as usize] = fi as u32;
                 fill[v as usize] += 1;
@@ -132,6 +137,19 @@ pub fn correspondences(
     weight: f64,
     opts: &IcpOptions,
 ) -> (Vec<PointConstraint>, MatchStats) {
+    correspondences_on(&topo.faces, vf, x, points, normals, weight, opts)
+}
+
+/// [`correspondences`] against the triangles `faces` (with their incidence lists `vf`).
+pub fn correspondences_on(
+    faces: &[[u32; 3]],
+    vf: &VertexFaces,
+    x: &[V3],
+    points: &[V3],
+    normals: Option<&[V3]>,
+    weight: f64,
+    opts: &IcpOptions,
+) -> (Vec<PointConstraint>, MatchStats) {
     let mut tree: KdTree<f64, 3> = KdTree::with_capacity(x.len());
     for (v, p) in x.iter().enumerate() {
         tree.add(p, v as u64);
@@ -145,7 +163,7 @@ pub fn correspondences(
         let v = nn.item as u32;
         let mut best: Option<(f64, u32, [f64; 3])> = None;
         for &f in vf.of(v) {
-            let [a, b, c] = topo.faces[f as usize];
+            let [a, b, c] = faces[f as usize];
             let (pa, pb, pc) = (x[a as usize], x[b as usize], x[c as usize]);
             let bc = closest_on_triangle(p, pa, pb, pc);
             let q = add(add(scale(pa, bc[0]), scale(pb, bc[1])), scale(pc, bc[2]));
@@ -159,7 +177,7 @@ pub fn correspondences(
             st.rejected_distance += 1;
             continue;
         }
-        let [a, b, c] = topo.faces[f as usize];
+        let [a, b, c] = faces[f as usize];
         let nf = cross(
             sub(x[b as usize], x[a as usize]),
             sub(x[c as usize], x[a as usize]),

@@ -12,5 +12,5 @@ pub mod pipeline;
 
 pub use error::{FitError, Result};
 pub use fit::{Constraints, FitOptions, FitReport, FitResult, Fitter, Init, VertexHandle};
-pub use pipeline::{Rig, fit_frame, ik_fit, init_of};
+pub use pipeline::{IkIcpOptions, Rig, fit_frame, ik_config_for_noise, ik_fit, ik_icp, init_of};
 pub mod twist;

@@ -3,8 +3,10 @@
 
 use anyhow::{Context, Result, anyhow};
 use clap::{Args, ValueEnum};
-use panoman_fit::fit::{FitOptions, FitResult, VertexHandle, keypoint_residuals};
-use panoman_fit::{Constraints, Fitter, Rig, fit_frame, ik_fit};
+use panoman_fit::fit::{FitOptions, FitResult, VertexHandle, keypoint_residuals, warm_fit_options};
+use panoman_fit::{
+    Constraints, Fitter, IkIcpOptions, Rig, fit_frame, ik_config_for_noise, ik_fit, ik_icp,
+};
 use panoman_human::ik::{IkConfig, IkResult, IkState};
 use panoman_human::keypoints::KeypointsFile;
 use panoman_mesh::{TriMesh, io};
@@ -53,6 +55,10 @@ pub struct FitArgs {
     /// Fit a baseline instead of PanoMan.
     #[arg(long)]
     pub baseline: Option<Baseline>,
+    /// Expected keypoint noise σ (metres, per coordinate, e.g. 0.005 for a detector): the
+    /// initializer's pose, shape and expression priors grow with σ².
+    #[arg(long, default_value_t = 0.0)]
+    pub keypoint_sigma: f64,
     /// Keypoint weight λ_K (dimensionless).
     #[arg(long, default_value_t = FitOptions::default().keypoint_weight)]
     pub keypoint_weight: f64,
@@ -195,6 +201,12 @@ pub fn run(a: FitArgs) -> Result<()> {
     fitter
         .validate(&c)
         .map_err(|e| anyhow!("{}: {e}", a.keypoints.display()))?;
+    if !(a.keypoint_sigma >= 0.0 && a.keypoint_sigma.is_finite()) {
+        return Err(anyhow!(
+            "--keypoint-sigma must be a finite value ≥ 0 (metres)"
+        ));
+    }
+    let ikc = ik_config_for_noise(a.keypoint_sigma);
     let setup_s = t_setup.elapsed().as_secs_f64();
     std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
     let opts = FitOptions {
@@ -203,8 +215,14 @@ pub fn run(a: FitArgs) -> Result<()> {
     };
     match a.baseline {
         Some(Baseline::Lbs) => {
-            let r = ik_fit(&ik, &c, &IkConfig::default())
-                .map_err(|e| anyhow!("{}: {e}", a.keypoints.display()))?;
+            let kerr = |e: panoman_fit::FitError| anyhow!("{}: {e}", a.keypoints.display());
+            let mut r = ik_fit(&ik, &c, &ikc).map_err(kerr)?;
+            if c.points.is_some() {
+                // The rig fitted to the scan too (skeletal ICP), same as PanoMan's initializer.
+                r = ik_icp(&rig, &ik, &c, &ikc, &r, &IkIcpOptions::default())
+                    .map_err(kerr)?
+                    .0;
+            }
             io::write_mesh(
                 &a.out.join("mesh.obj"),
                 &TriMesh::new(r.posed.clone(), model.faces.clone()),
@@ -218,16 +236,8 @@ pub fn run(a: FitArgs) -> Result<()> {
             print_summary("lbs", r.seconds, &rep["keypoint_residuals"], &a.out);
         }
         None => {
-            let (ikr, fit) = fit_frame(
-                &rig,
-                &ik,
-                &mut fitter,
-                &c,
-                &IkConfig::default(),
-                &opts,
-                None,
-            )
-            .map_err(|e| anyhow!("{}: {e}", a.keypoints.display()))?;
+            let (ikr, fit) = fit_frame(&rig, &ik, &mut fitter, &c, &ikc, &opts, None)
+                .map_err(|e| anyhow!("{}: {e}", a.keypoints.display()))?;
             io::write_mesh(
                 &a.out.join("mesh.obj"),
                 &TriMesh::new(fit.vertices.clone(), model.faces.clone()),
@@ -288,6 +298,7 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
     let mut fitter = Fitter::new(&model)?;
     std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
     let opts = FitOptions::default();
+    let warm_opts = warm_fit_options();
     let bar = crate::util::progress_bar(frames.len() as u64, "track");
     // The previous frame: IK state (warm start), fitted vertices and parameters.
     let mut prev: Option<(IkState, Vec<[f64; 3]>, Params)> = None;
@@ -324,13 +335,14 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
                 (r.posed, r.seconds, res, json!({"ik": r.seconds}))
             }
             None => {
+                let o = if warm.is_some() { &warm_opts } else { &opts };
                 let (ikr, fit) = fit_frame(
                     &rig,
                     &ik,
                     &mut fitter,
                     &c,
                     &IkConfig::default(),
-                    &opts,
+                    o,
                     warm.as_ref(),
                 )
                 .map_err(err)?;
