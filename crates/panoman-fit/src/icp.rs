@@ -5,6 +5,7 @@
 //! `max_distance`, and (when the scan has normals) pairs whose normals differ by more than
 //! `max_normal_angle_deg`, are rejected.
 use kiddo::{KdTree, SquaredEuclidean};
+use panoman_human::template::closest_point_on_triangle;
 use panoman_mesh::Topology;
 use panoman_mesh::geom::{V3, add, cross, dot, norm, scale, sub};
 use panoman_mesh::shell::PointConstraint;
@@ -69,50 +70,6 @@ impl VertexFaces {
     }
 }
 
-/// Closest point of triangle (a, b, c) to p: returns barycentric weights (Ericson's region
-/// tests: vertex, edge or interior Voronoi region).
-pub fn closest_on_triangle(p: V3, a: V3, b: V3, c: V3) -> [f64; 3] {
-    let ab = sub(b, a);
-    let ac = sub(c, a);
-    let ap = sub(p, a);
-    let d1 = dot(ab, ap);
-    let d2 = dot(ac, ap);
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return [1.0, 0.0, 0.0];
-    }
-    let bp = sub(p, b);
-    let d3 = dot(ab, bp);
-    let d4 = dot(ac, bp);
-    if d3 >= 0.0 && d4 <= d3 {
-        return [0.0, 1.0, 0.0];
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let v = d1 / (d1 - d3);
-        return [1.0 - v, v, 0.0];
-    }
-    let cp = sub(p, c);
-    let d5 = dot(ab, cp);
-    let d6 = dot(ac, cp);
-    if d6 >= 0.0 && d5 <= d6 {
-        return [0.0, 0.0, 1.0];
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let w = d2 / (d2 - d6);
-        return [1.0 - w, 0.0, w];
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return [0.0, 1.0 - w, w];
-    }
-    let denom = 1.0 / (va + vb + vc);
-    let v = vb * denom;
-    let w = vc * denom;
-    [1.0 - v - w, v, w]
-}
-
 /// Outcome of one matching pass.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct MatchStats {
@@ -165,7 +122,7 @@ pub fn correspondences_on(
         for &f in vf.of(v) {
             let [a, b, c] = faces[f as usize];
             let (pa, pb, pc) = (x[a as usize], x[b as usize], x[c as usize]);
-            let bc = closest_on_triangle(p, pa, pb, pc);
+            let bc = closest_point_on_triangle(p, pa, pb, pc);
             let q = add(add(scale(pa, bc[0]), scale(pb, bc[1])), scale(pc, bc[2]));
             let d = norm(sub(p, q));
             if best.is_none_or(|(bd, _, _)| d < bd) {
