@@ -326,6 +326,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let mut stage_times: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
     let mut warm_stage_times: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
     let mut first_fit: Option<(Vec<V3>, Vec<V3>, Vec<V3>)> = None;
+    // (method, keypoint group) → (Σ mean residual mm, max mm, people).
+    let mut kp_res: std::collections::BTreeMap<(&str, String), (f64, f64, usize)> =
+        Default::default();
     let mut fits_a: Vec<FitResult> = Vec::new();
     for &r in &pick {
         let truth = to_v3(ds.vertices(r)?);
@@ -365,6 +368,14 @@ pub fn run(a: EvalArgs) -> Result<()> {
             } else {
                 pm_exact.push(ep);
                 lbs_exact.push(el);
+                for (m, x) in [("panoman", &fit.vertices), ("lbs", &ikr.posed)] {
+                    for (g, r) in keypoint_residuals(&model, &c.keypoints, x) {
+                        let e = kp_res.entry((m, g)).or_insert((0.0, 0.0f64, 0usize));
+                        e.0 += r.mean_mm;
+                        e.1 = e.1.max(r.max_mm);
+                        e.2 += 1;
+                    }
+                }
                 stage_times
                     .entry("ik".into())
                     .or_default()
@@ -392,6 +403,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
             "people": pick.len(),
             "exact": {"panoman": mean_of(&pm_exact), "lbs": mean_of(&lbs_exact)},
             "noise_5mm": {"panoman": mean_of(&pm_noisy), "lbs": mean_of(&lbs_noisy)},
+            "keypoint_residual_exact_mm": kp_res.iter().map(|((m, g), (s, mx, n))| {
+                (format!("{m}/{g}"), json!({"mean": s / *n as f64, "max": mx}))
+            }).collect::<serde_json::Map<String, Value>>(),
             "per_person_exact": pm_exact.iter().zip(&lbs_exact)
                 .map(|(p, l)| json!({"panoman": p, "lbs": l})).collect::<Vec<_>>(),
         }),
