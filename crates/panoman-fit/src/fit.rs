@@ -29,7 +29,9 @@ use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences};
 use panoman_human::keypoints::{KeypointGroup, KeypointsFile};
 use panoman_mesh::align::rigid_align;
 use panoman_mesh::geom::{V3, norm, sub};
-use panoman_mesh::shell::{Handle, PointConstraint, ShellOptions, ShellSolver, ShellTargets};
+use panoman_mesh::shell::{
+    Handle, PointConstraint, ShellOptions, ShellReport, ShellSolver, ShellTargets,
+};
 use panoman_mesh::{RestGeometry, Rla, Topology};
 use panoman_model::model::{Evaluator, PanoManModel, Params};
 use serde::Serialize;
@@ -192,6 +194,39 @@ pub struct StageReport {
     pub matches: Option<MatchStats>,
 }
 
+impl StageReport {
+    /// A stage without LM iterations (projection, placement) that started at `t`.
+    fn timed(name: &str, t: Instant) -> Self {
+        StageReport {
+            name: name.into(),
+            seconds: t.elapsed().as_secs_f64(),
+            iterations: 0,
+            accepted: 0,
+            energy_start: 0.0,
+            energy_end: 0.0,
+            matches: None,
+        }
+    }
+
+    /// A stage that started at `t` and ended with the V-step `rep`.
+    fn of_solve(
+        name: impl Into<String>,
+        t: Instant,
+        rep: &ShellReport,
+        matches: Option<MatchStats>,
+    ) -> Self {
+        StageReport {
+            name: name.into(),
+            seconds: t.elapsed().as_secs_f64(),
+            iterations: rep.iterations,
+            accepted: rep.accepted,
+            energy_start: rep.energies[0],
+            energy_end: *rep.energies.last().unwrap_or(&0.0),
+            matches,
+        }
+    }
+}
+
 /// Residual of one keypoint group (mm).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct GroupResidual {
@@ -291,7 +326,7 @@ impl<'m> Fitter<'m> {
                 "nothing to fit: no keypoints, handles or points".into(),
             ));
         }
-        let names = keypoint_names_of(self.model);
+        let names = &self.model.keypoints.names;
         for &k in c.keypoints.points.keys() {
             let name = &panoman_human::keypoints::keypoint_names()[k];
             if !names.iter().any(|n| n == name) {
@@ -420,6 +455,26 @@ impl<'m> Fitter<'m> {
         )?)
     }
 
+    /// V-step: `iterations` LM iterations of the shell energy with `targets` from `x`.
+    fn v_step(
+        &mut self,
+        targets: &ShellTargets,
+        x: &mut [V3],
+        iterations: usize,
+        opts: &FitOptions,
+    ) -> Result<ShellReport> {
+        Ok(self.solver.solve(
+            targets,
+            x,
+            &ShellOptions {
+                max_iterations: iterations,
+                mu_init: opts.mu_init,
+                parallel_factor: opts.parallel_factor,
+                ..Default::default()
+            },
+        )?)
+    }
+
     /// β-step: least-squares β of V's RL/RA w.r.t. `B_S(α)`; fixed blocks keep their values.
     fn beta_step(
         &self,
@@ -523,40 +578,15 @@ impl<'m> Fitter<'m> {
             m.apply_all(&mut g);
             g
         };
-        stages.push(StageReport {
-            name: "init".into(),
-            seconds: t.elapsed().as_secs_f64(),
-            iterations: 0,
-            accepted: 0,
-            energy_start: 0.0,
-            energy_end: 0.0,
-            matches: None,
-        });
+        stages.push(StageReport::timed("init", t));
         // Stage 1: torso keypoints.
         let torso = self.keypoint_terms(c, Some(&TORSO_KEYPOINTS));
         if !torso.is_empty() && opts.torso_iterations > 0 {
             let t = Instant::now();
             let mut targets = self.guidance(&params, &rg, &x, opts)?;
             self.constraint_targets(&mut targets, &torso, c, opts);
-            let rep = self.solver.solve(
-                &targets,
-                &mut x,
-                &ShellOptions {
-                    max_iterations: opts.torso_iterations,
-                    mu_init: opts.mu_init,
-                    parallel_factor: opts.parallel_factor,
-                    ..Default::default()
-                },
-            )?;
-            stages.push(StageReport {
-                name: "torso".into(),
-                seconds: t.elapsed().as_secs_f64(),
-                iterations: rep.iterations,
-                accepted: rep.accepted,
-                energy_start: rep.energies[0],
-                energy_end: *rep.energies.last().unwrap_or(&0.0),
-                matches: None,
-            });
+            let rep = self.v_step(&targets, &mut x, opts.torso_iterations, opts)?;
+            stages.push(StageReport::of_solve("torso", t, &rep, None));
         }
         // Stage 2: all keypoints, alternating V- and β-steps.
         {
@@ -570,16 +600,7 @@ impl<'m> Fitter<'m> {
                 }
                 let mut targets = self.guidance(&params, &rg, &x, opts)?;
                 self.constraint_targets(&mut targets, &all_kp, c, opts);
-                let rep = self.solver.solve(
-                    &targets,
-                    &mut x,
-                    &ShellOptions {
-                        max_iterations: opts.step_iterations,
-                        mu_init: opts.mu_init,
-                        parallel_factor: opts.parallel_factor,
-                        ..Default::default()
-                    },
-                )?;
+                let rep = self.v_step(&targets, &mut x, opts.step_iterations, opts)?;
                 its += rep.iterations;
                 acc += rep.accepted;
                 e0 = rep.energies[0];
@@ -613,25 +634,13 @@ impl<'m> Fitter<'m> {
                     &opts.icp,
                 );
                 targets.points.extend(cons);
-                let rep = self.solver.solve(
-                    &targets,
-                    &mut x,
-                    &ShellOptions {
-                        max_iterations: opts.step_iterations,
-                        mu_init: opts.mu_init,
-                        parallel_factor: opts.parallel_factor,
-                        ..Default::default()
-                    },
-                )?;
-                stages.push(StageReport {
-                    name: format!("icp{}", pass + 1),
-                    seconds: t.elapsed().as_secs_f64(),
-                    iterations: rep.iterations,
-                    accepted: rep.accepted,
-                    energy_start: rep.energies[0],
-                    energy_end: *rep.energies.last().unwrap_or(&0.0),
-                    matches: Some(stats),
-                });
+                let rep = self.v_step(&targets, &mut x, opts.step_iterations, opts)?;
+                stages.push(StageReport::of_solve(
+                    format!("icp{}", pass + 1),
+                    t,
+                    &rep,
+                    Some(stats),
+                ));
             }
         }
         // Final parameters and the rigid motion placing B_P(α, β) on the fit.
@@ -643,15 +652,7 @@ impl<'m> Fitter<'m> {
         let m = rigid_align(&guide, &x, None);
         params.rotation = rotation_vector(&m.r);
         params.translation = m.t;
-        stages.push(StageReport {
-            name: "params".into(),
-            seconds: t.elapsed().as_secs_f64(),
-            iterations: 0,
-            accepted: 0,
-            energy_start: 0.0,
-            energy_end: 0.0,
-            matches: None,
-        });
+        stages.push(StageReport::timed("params", t));
         let report = FitReport {
             stages,
             keypoint_residuals: keypoint_residuals(self.model, &c.keypoints, &x),
@@ -663,11 +664,6 @@ impl<'m> Fitter<'m> {
             report,
         })
     }
-}
-
-/// TC-127 names the model defines keypoint rows for.
-fn keypoint_names_of(model: &PanoManModel) -> &[String] {
-    &model.keypoints.names
 }
 
 /// Residual per keypoint group (mm) of the model's keypoints on `x` against the targets.
@@ -709,10 +705,11 @@ pub fn rotation_vector(r: &[[f64; 3]; 3]) -> V3 {
     let s = norm(w);
     let c = 0.5 * (r[0][0] + r[1][1] + r[2][2] - 1.0);
     let theta = s.atan2(c);
-    if s < 1e-12 && c > 0.0 {
-        return w; // θ ≈ 0: the vector is w itself to first order
-    }
-    if s > 1e-6 {
+    if c > 0.0 || s > 1e-6 {
+        // Away from θ = π the axis is w/|w|; θ/s → 1 as θ → 0, and s = 0 with c > 0 is I.
+        if s == 0.0 {
+            return [0.0; 3];
+        }
         return [w[0] * theta / s, w[1] * theta / s, w[2] * theta / s];
     }
     // θ ≈ π: R ≈ 2aaᵀ − I.
@@ -728,4 +725,32 @@ pub fn rotation_vector(r: &[[f64; 3]; 3]) -> V3 {
     }
     let n = norm(a).max(1e-300);
     [a[0] / n * theta, a[1] / n * theta, a[2] / n * theta]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::rotation_vector;
+    use panoman_mesh::align::axis_angle;
+
+    /// `rotation_vector` inverts `axis_angle` for angles in (0, π], including the θ ≈ 0 and
+    /// θ ≈ π branches (at π the axis sign is ambiguous: ±a·π are the same rotation).
+    #[test]
+    fn rotation_vector_inverts_axis_angle() {
+        let axes = [
+            [1.0, 0.0, 0.0],
+            [0.0, 0.6, 0.8],
+            [0.48, -0.6, 0.64],
+            [-0.36, 0.48, 0.8],
+        ];
+        for a in axes {
+            for theta in [1e-9, 1e-4, 0.3, 1.5, 3.0, std::f64::consts::PI - 1e-7] {
+                let v = rotation_vector(&axis_angle(a, theta));
+                let want = a.map(|c| c * theta);
+                let err = (0..3).map(|k| (v[k] - want[k]).abs()).fold(0.0, f64::max);
+                let err_flip = (0..3).map(|k| (v[k] + want[k]).abs()).fold(0.0, f64::max);
+                let ok = err < 1e-9 || (theta > 3.1 && err_flip < 1e-6);
+                assert!(ok, "axis {a:?} θ {theta}: got {v:?}, want {want:?}");
+            }
+        }
+    }
 }

@@ -6,7 +6,7 @@
 //! lies in `[t0, t1]` and whose distance to the axis is below `r_max`. Slices are equal
 //! intervals of the rest `t`; the *radius ratio* of a slice is the median over its vertices of
 //! the posed distance to the posed axis divided by the median rest distance to the rest axis.
-use panoman_mesh::geom::{V3, dot, norm, scale, sub};
+use panoman_mesh::geom::{V3, dot, norm, sub};
 
 /// Vertices of a limb segment with their rest parameter `t` (module docs).
 #[derive(Clone, Debug)]
@@ -86,10 +86,4 @@ pub fn median(x: &mut [f64]) -> f64 {
     } else {
         0.5 * (x[m - 1] + x[m])
     }
-}
-
-/// Unit direction from `a` to `b`.
-pub fn direction(a: V3, b: V3) -> V3 {
-    let d = sub(b, a);
-    scale(d, 1.0 / norm(d).max(1e-300))
 }

@@ -107,3 +107,56 @@ pub fn line_panels(
         anyhow::anyhow!("{}: {e}", path.display())
     })
 }
+
+/// The paper's Fig. 7 from component curves: `csv_path` (one row per part and component
+/// count: RL/RA residual RMS and mesh error) and `png_path` (three panels, log x axis).
+pub fn component_curves_files(
+    csv_path: &Path,
+    png_path: &Path,
+    curves: &[panoman_model::train::CurvePoint],
+) -> Result<()> {
+    let mut csv = String::from("part,k,rl_rms,ra_rms_rad,mesh_mean_mm,mesh_max_mm\n");
+    for p in curves {
+        csv.push_str(&format!(
+            "{},{},{:.6e},{:.6e},{:.4},{:.4}\n",
+            p.part, p.k, p.rl_rms, p.ra_rms, p.mesh_mean_mm, p.mesh_max_mm
+        ));
+    }
+    crate::util::write_atomic(csv_path, &csv)?;
+    let series = |f: &dyn Fn(&panoman_model::train::CurvePoint) -> f64| -> Vec<Series> {
+        ["body", "face", "hands"]
+            .iter()
+            .map(|part| Series {
+                name: part.to_string(),
+                points: curves
+                    .iter()
+                    .filter(|p| p.part == *part)
+                    .map(|p| (p.k as f64, f(p)))
+                    .collect(),
+            })
+            .filter(|s| !s.points.is_empty())
+            .collect()
+    };
+    line_panels(
+        png_path,
+        &[
+            (
+                "RL approximation error".into(),
+                "RMS of RL residual".into(),
+                series(&|p| p.rl_rms),
+            ),
+            (
+                "RA approximation error".into(),
+                "RMS of RA residual (rad)".into(),
+                series(&|p| p.ra_rms),
+            ),
+            (
+                "Mesh error".into(),
+                "mean per-vertex error (mm)".into(),
+                series(&|p| p.mesh_mean_mm),
+            ),
+        ],
+        "number of components (per block)",
+        true,
+    )
+}

@@ -9,68 +9,23 @@ use panoman_human::keypoints::{KeypointsFile, keypoint_index};
 use panoman_mesh::geom::{V3, norm, sub};
 use panoman_model::model::PanoManModel;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
 
-fn panoman(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_panoman"))
-        .args(args)
-        .output()
-        .expect("run panoman")
-}
-
-fn ok(o: std::process::Output) -> String {
-    assert!(
-        o.status.success(),
-        "stdout {}\nstderr {}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8(o.stdout).unwrap()
-}
-
-fn one_line_error(o: &std::process::Output, needle: &str) {
-    assert!(!o.status.success(), "must fail");
-    let err = String::from_utf8_lossy(&o.stderr);
-    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
-    assert_eq!(lines.len(), 1, "one line expected: {err:?}");
-    assert!(
-        lines[0].starts_with("error: ") && lines[0].contains(needle),
-        "{err}"
-    );
-    assert!(!err.contains("panicked"), "{err}");
-}
+mod common;
+use common::{ok, one_line_error, panoman, small_model};
 
 /// A small dataset and a model trained on it (shared by the tests of this file).
 fn trained() -> &'static (PathBuf, PathBuf, PathBuf) {
     static CELL: OnceLock<(PathBuf, PathBuf, PathBuf)> = OnceLock::new();
-    CELL.get_or_init(|| {
-        panoman_human::assets::ensure_default().expect("assets");
-        let d = std::env::temp_dir().join(format!("panoman-fit-test-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        let data = d.join("H");
-        ok(panoman(&[
-            "synth",
-            "--preset",
-            "small",
-            "--seed",
-            "5",
-            "--out",
-            data.to_str().unwrap(),
-        ]));
-        let model = d.join("M.safetensors");
-        ok(panoman(&[
-            "train",
-            "--data",
-            data.to_str().unwrap(),
-            "--preset",
-            "small",
-            "--out",
-            model.to_str().unwrap(),
-        ]));
-        (d, data, model)
-    })
+    CELL.get_or_init(|| small_model("fit-test", 5))
+}
+
+/// The model and its LBS rig.
+fn model_and_rig(model_path: &Path) -> (PanoManModel, Rig) {
+    let model = PanoManModel::load(model_path).unwrap();
+    let assets = panoman_human::assets::ensure_default().unwrap();
+    let rig = Rig::load(&assets, &model).unwrap();
+    (model, rig)
 }
 
 /// Held-out body-pose rows: (posed, rest) vertices.
@@ -100,9 +55,7 @@ fn mean_error(a: &[V3], b: &[V3]) -> f64 {
 #[test]
 fn held_out_people_from_exact_keypoints() {
     let (_, data, model_path) = trained();
-    let model = PanoManModel::load(model_path).unwrap();
-    let assets = panoman_human::assets::ensure_default().unwrap();
-    let rig = Rig::load(&assets, &model).unwrap();
+    let (model, rig) = model_and_rig(model_path);
     let ik = rig.ik_solver().unwrap();
     let mut fitter = Fitter::new(&model).unwrap();
     let cases = held_out(data, 3);
@@ -158,9 +111,7 @@ fn held_out_people_from_exact_keypoints() {
 #[test]
 fn point_cloud_with_missing_part_and_noise_helps() {
     let (_, data, model_path) = trained();
-    let model = PanoManModel::load(model_path).unwrap();
-    let assets = panoman_human::assets::ensure_default().unwrap();
-    let rig = Rig::load(&assets, &model).unwrap();
+    let (model, rig) = model_and_rig(model_path);
     let ik = rig.ik_solver().unwrap();
     let mut fitter = Fitter::new(&model).unwrap();
     let (truth, _) = &held_out(data, 1)[0];
@@ -233,9 +184,7 @@ fn point_cloud_with_missing_part_and_noise_helps() {
 #[test]
 fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
     let (_, data, model_path) = trained();
-    let model = PanoManModel::load(model_path).unwrap();
-    let assets = panoman_human::assets::ensure_default().unwrap();
-    let rig = Rig::load(&assets, &model).unwrap();
+    let (model, rig) = model_and_rig(model_path);
     let ik = rig.ik_solver().unwrap();
     let mut fitter = Fitter::new(&model).unwrap();
     let (truth, rest) = &held_out(data, 1)[0];

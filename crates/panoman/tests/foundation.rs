@@ -11,6 +11,9 @@ use panoman_mesh::{Reconstructor, RestGeometry, Rla, Topology, TriMesh};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+mod common;
+use common::panoman;
+
 const CASES: [&str; 3] = ["default", "seed000", "seed001"];
 
 fn fixtures() -> PathBuf {
@@ -24,13 +27,6 @@ fn tmpdir(tag: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
-}
-
-fn panoman(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_panoman"))
-        .args(args)
-        .output()
-        .expect("run panoman")
 }
 
 fn template() -> Template {

@@ -6,20 +6,15 @@ use panoman_human::keypoints::{KeypointsFile, N_KEYPOINTS, keypoint_index, load_
 use panoman_human::template::{full_template, small_template};
 use panoman_mesh::io;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+
+mod common;
+use common::panoman;
 
 fn tmpdir(tag: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("panoman-kp-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
-}
-
-fn panoman(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_panoman"))
-        .args(args)
-        .output()
-        .expect("run panoman")
 }
 
 fn s(p: &Path) -> &str {

@@ -4,66 +4,16 @@
 use panoman_mesh::{TriMesh, io};
 use panoman_model::model::{Evaluator, PanoManModel, Params};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
 
-fn panoman(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_panoman"))
-        .args(args)
-        .output()
-        .expect("run panoman")
-}
-
-fn ok(o: std::process::Output) -> String {
-    assert!(
-        o.status.success(),
-        "stdout {}\nstderr {}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8(o.stdout).unwrap()
-}
-
-fn one_line_error(o: &std::process::Output, needle: &str) {
-    assert!(!o.status.success(), "must fail");
-    let err = String::from_utf8_lossy(&o.stderr);
-    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
-    assert_eq!(lines.len(), 1, "one line expected: {err:?}");
-    assert!(
-        lines[0].starts_with("error: ") && lines[0].contains(needle),
-        "{err}"
-    );
-    assert!(!err.contains("panicked"), "{err}");
-}
+mod common;
+use common::{ok, one_line_error, panoman, small_model};
 
 /// A small dataset and a model trained on it, shared by the tests of this file.
 fn trained() -> &'static (PathBuf, PathBuf) {
     static CELL: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
     CELL.get_or_init(|| {
-        panoman_human::assets::ensure_default().expect("assets");
-        let d = std::env::temp_dir().join(format!("panoman-model-test-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        let data = d.join("H");
-        ok(panoman(&[
-            "synth",
-            "--preset",
-            "small",
-            "--seed",
-            "3",
-            "--out",
-            data.to_str().unwrap(),
-        ]));
-        let model = d.join("M.safetensors");
-        ok(panoman(&[
-            "train",
-            "--data",
-            data.to_str().unwrap(),
-            "--preset",
-            "small",
-            "--out",
-            model.to_str().unwrap(),
-        ]));
+        let (_, data, model) = small_model("model-test", 3);
         (data, model)
     })
 }

@@ -5,7 +5,9 @@
 use panoman_human::template::full_template;
 use panoman_mesh::io;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+
+mod common;
+use common::panoman;
 
 const BACKGROUND: [u8; 3] = [236, 236, 236];
 
@@ -14,13 +16,6 @@ fn tmpdir(tag: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
-}
-
-fn panoman(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_panoman"))
-        .args(args)
-        .output()
-        .expect("run panoman")
 }
 
 fn s(p: &Path) -> &str {

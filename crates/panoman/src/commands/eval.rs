@@ -236,46 +236,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     say("representation error and component curves");
     let repr = evaluate_representation(&model, &ds, &regions, preset.repr_rows)?;
     let curves = component_curves(&model, &ds, &regions, preset.curve_rows)?;
-    let mut csv = String::from("part,k,rl_rms,ra_rms_rad,mesh_mean_mm,mesh_max_mm\n");
-    for p in &curves {
-        let _ = writeln!(
-            csv,
-            "{},{},{},{},{},{}",
-            p.part, p.k, p.rl_rms, p.ra_rms, p.mesh_mean_mm, p.mesh_max_mm
-        );
-    }
-    write_text(&out("components.csv"), &csv)?;
-    let series = |f: &dyn Fn(&panoman_model::train::CurvePoint) -> f64| -> Vec<Series> {
-        ["body", "face", "hands"]
-            .iter()
-            .map(|part| Series {
-                name: part.to_string(),
-                points: curves
-                    .iter()
-                    .filter(|p| p.part == *part)
-                    .map(|p| (p.k as f64, f(p)))
-                    .collect(),
-            })
-            .filter(|s| !s.points.is_empty())
-            .collect()
-    };
-    line_panels(
-        &out("components.png"),
-        &[
-            (
-                "RA residual".into(),
-                "RMS (rad)".into(),
-                series(&|p| p.ra_rms),
-            ),
-            (
-                "Mesh error".into(),
-                "mean per-vertex error (mm)".into(),
-                series(&|p| p.mesh_mean_mm),
-            ),
-        ],
-        "number of components (per block)",
-        true,
-    )?;
+    crate::plot::component_curves_files(&out("components.csv"), &out("components.png"), &curves)?;
     let ablation: Vec<Series> = ["body", "face", "hands"]
         .iter()
         .map(|part| Series {

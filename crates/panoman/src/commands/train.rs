@@ -1,6 +1,6 @@
 //! `panoman train`: dataset H → PanoMan model file, training report and the Fig. 7 curves.
 
-use crate::plot::{Series, line_panels};
+use crate::plot::component_curves_files;
 use crate::util::write_atomic;
 use anyhow::{Context, Result, bail};
 use clap::Args;
@@ -118,52 +118,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
     report["timings"]["curves_s"] = eval["timings"]["curves_s"].clone();
     write_atomic(&report_path, &serde_json::to_string_pretty(&report)?)?;
     // Fig. 7: CSV + PNG.
-    let mut csv = String::from("part,k,rl_rms,ra_rms_rad,mesh_mean_mm,mesh_max_mm\n");
-    for p in &curves {
-        csv.push_str(&format!(
-            "{},{},{:.6e},{:.6e},{:.4},{:.4}\n",
-            p.part, p.k, p.rl_rms, p.ra_rms, p.mesh_mean_mm, p.mesh_max_mm
-        ));
-    }
     let csv_path = PathBuf::from(format!("{}.fig7.csv", stem.display()));
-    write_atomic(&csv_path, &csv)?;
-    let series = |f: &dyn Fn(&panoman_model::train::CurvePoint) -> f64| -> Vec<Series> {
-        ["body", "face", "hands"]
-            .iter()
-            .map(|part| Series {
-                name: part.to_string(),
-                points: curves
-                    .iter()
-                    .filter(|p| p.part == *part)
-                    .map(|p| (p.k as f64, f(p)))
-                    .collect(),
-            })
-            .filter(|s| !s.points.is_empty())
-            .collect()
-    };
     let png_path = PathBuf::from(format!("{}.fig7.png", stem.display()));
-    line_panels(
-        &png_path,
-        &[
-            (
-                "RL approximation error".into(),
-                "RMS of RL residual".into(),
-                series(&|p| p.rl_rms),
-            ),
-            (
-                "RA approximation error".into(),
-                "RMS of RA residual (rad)".into(),
-                series(&|p| p.ra_rms),
-            ),
-            (
-                "Mesh error".into(),
-                "mean per-vertex error (mm)".into(),
-                series(&|p| p.mesh_mean_mm),
-            ),
-        ],
-        "number of components (per block)",
-        true,
-    )?;
+    component_curves_files(&csv_path, &png_path, &curves)?;
     let ev = &report["representation_error"];
     println!(
         "{}: {} model ({} shape, β {}), trained in {:.1} s",
