@@ -30,7 +30,7 @@ use crate::geom::{V3, cross, dot, norm, scale, sub};
 use crate::rla::{
     RestGeometry, Rla, check_positions, dihedral_angle, dihedral_gradient, wrap_angle,
 };
-use crate::sparse::SpdFactor;
+use crate::sparse::{QuasiDefiniteFactor, SpdFactor};
 use crate::topology::{NONE, Topology};
 use faer::dyn_stack::MemBuffer;
 use faer::sparse::{SparseColMat, SparseColMatRef, SymbolicSparseColMat};
@@ -412,6 +412,42 @@ pub struct ShellSolver {
     chunk_sums: Vec<f64>,
     skipped: usize,
     linearized: bool,
+    /// Point supports kept out of JᵀJ and solved through the quasi-definite system (see
+    /// [`ShellSolver::with_dense_supports`]); `None` without such supports.
+    dense: Option<DenseSupports>,
+}
+
+/// Point-to-point constraints `W_k |Γ_k x − t̄_k|²` on registered supports Γ_k that couple many
+/// vertices (keypoint regressors of a few hundred vertices). Their block `Γᵀ W Γ` would add a
+/// dense clique per support to JᵀJ; instead each step solves the equivalent quasi-definite
+/// system (a regularised KKT system; eliminating s gives back `(H + Γᵀ W Γ) δ = −g`)
+///
+/// ```text
+/// [ JᵀJ + μD   Γᵀ    ] [δ]   [ −(g − Γᵀ W (Γx − t̄)) ]
+/// [ Γ         −W⁻¹   ] [s] = [ −(Γx − t̄)            ]
+/// ```
+///
+/// whose pattern adds only one row per support coordinate, and whose `L D Lᵀ` exists for any
+/// ordering (quasi-definiteness, μ > 0).
+struct DenseSupports {
+    /// Per support: merged `(vertex, b)` pairs, sorted by vertex.
+    rows: Vec<Vec<(u32, f64)>>,
+    /// The given vertex sequence of each support → its index.
+    index: std::collections::HashMap<Vec<u32>, usize>,
+    /// Pattern of the quasi-definite matrix (lower CSC, size 3|V| + 3K).
+    pattern: SymbolicSparseColMat<usize>,
+    values: Vec<f64>,
+    /// Per support and member: the value offsets of the couplings (s_{k,c}, x_{m,c}), c = 0..3.
+    coupling_slots: Vec<Vec<[u32; 3]>>,
+    /// Per support: the value offsets of the three diagonal entries of s_k.
+    diag_slots: Vec<[u32; 3]>,
+    factor: QuasiDefiniteFactor,
+    factor_scratch: Option<(bool, MemBuffer)>,
+    solve_scratch: MemBuffer,
+    rhs: Vec<f64>,
+    /// Per support, from the last linearisation: total weight W_k and offset Γ_k x − t̄_k.
+    weight: Vec<f64>,
+    offset: Vec<V3>,
 }
 
 impl std::fmt::Debug for ShellSolver {
@@ -442,6 +478,28 @@ impl ShellSolver {
     /// [`PointConstraint`]s whose supports couple non-adjacent vertices (keypoint regressors)
     /// can be assembled. The pattern, and hence the symbolic factorization, is fixed here.
     pub fn with_extra_pairs(topo: &Topology, extra: &[(u32, u32)]) -> Result<Self> {
+        Self::with_dense_supports(topo, extra, &[])
+    }
+
+    /// As [`ShellSolver::with_extra_pairs`], plus *dense supports*: linear combinations of many
+    /// vertices (keypoint regressors). A point-to-point [`PointConstraint`] whose `rows` equal a
+    /// registered support (same vertices in the same order, same coefficients) is kept out of
+    /// JᵀJ and solved through a quasi-definite system (one extra unknown per support
+    /// coordinate instead of a dense vertex clique in the factor; see the type-level docs of
+    /// the solver module). The minimised energy and the steps are the same as with the pairs.
+    pub fn with_dense_supports(
+        topo: &Topology,
+        extra: &[(u32, u32)],
+        dense: &[Vec<(u32, f64)>],
+    ) -> Result<Self> {
+        let mut this = Self::build(topo, extra)?;
+        if !dense.is_empty() {
+            this.dense = Some(DenseSupports::new(&this, dense)?);
+        }
+        Ok(this)
+    }
+
+    fn build(topo: &Topology, extra: &[(u32, u32)]) -> Result<Self> {
         let nv = topo.n_vertices;
         let ne = topo.n_edges();
         // Block pairs (lo, hi), lo < hi.
@@ -559,6 +617,7 @@ impl ShellSolver {
             chunk_sums: Vec::new(),
             skipped: 0,
             linearized: false,
+            dense: None,
         })
     }
 
@@ -673,9 +732,27 @@ impl ShellSolver {
                 grad[3 * v + c] += h.weight * d[c];
             }
         }
+        if let Some(ds) = &mut self.dense {
+            ds.weight.fill(0.0);
+            ds.offset.fill([0.0; 3]);
+        }
         for (k, pc) in targets.points.iter().enumerate() {
             energy += pc.energy(x);
             let d = pc.offset(x);
+            if let Some(ds) = &mut self.dense
+                && let Some(kd) = ds.lookup(pc)
+            {
+                // Kept out of JᵀJ: gradient here, the rest in `step` (DenseSupports).
+                for &(vm, bm) in &pc.rows {
+                    axpy(grad, vm as usize, d, pc.weight * bm);
+                }
+                ds.weight[kd] += pc.weight;
+                // Accumulates Σ w_i t_i; turned into Γx − t̄ below.
+                for c in 0..3 {
+                    ds.offset[kd][c] += pc.weight * pc.target[c];
+                }
+                continue;
+            }
             // Block A (I or n̂n̂ᵀ) and A·d.
             let (a, ad) = match pc.normal {
                 Some(nn) => {
@@ -689,8 +766,10 @@ impl ShellSolver {
             };
             for (p, &(vm, bm)) in pc.rows.iter().enumerate() {
                 axpy(grad, vm as usize, ad, pc.weight * bm);
-                for &(vn, bn) in &pc.rows[..=p] {
-                    let f = pc.weight * bm * bn;
+                for (q, &(vn, bn)) in pc.rows[..=p].iter().enumerate() {
+                    // A vertex listed twice meets itself as (p, q) and (q, p).
+                    let twice = if vm == vn && q != p { 2.0 } else { 1.0 };
+                    let f = twice * pc.weight * bm * bn;
                     if vm == vn {
                         let m = vm as usize;
                         for c in 0..3 {
@@ -726,14 +805,32 @@ impl ShellSolver {
                 "shell solver: non-finite value after assembling JᵀJ and Jᵀr".into(),
             ));
         }
-        // Marquardt scaling D = max(diag JᵀJ, 1e−8·max diag) (+ an absolute floor).
-        let mut max_diag = 0.0f64;
+        // Marquardt scaling D = max(diag JᵀJ, 1e−8·max diag) (+ an absolute floor), with the
+        // dense supports' diagonal W b_m² included as if they were assembled.
         for c in 0..self.n {
-            max_diag = max_diag.max(vals[col_ptr[c]]);
+            self.diag_scale[c] = vals[col_ptr[c]];
         }
+        if let Some(ds) = &mut self.dense {
+            for (k, rows) in ds.rows.iter().enumerate() {
+                let w = ds.weight[k];
+                if w <= 0.0 {
+                    continue;
+                }
+                let mut p = [0.0; 3];
+                for &(v, b) in rows {
+                    for c in 0..3 {
+                        p[c] += b * x[v as usize][c];
+                        self.diag_scale[3 * v as usize + c] += w * b * b;
+                    }
+                }
+                let tsum = ds.offset[k];
+                ds.offset[k] = [0, 1, 2].map(|c| p[c] - tsum[c] / w);
+            }
+        }
+        let max_diag = self.diag_scale.iter().fold(0.0f64, |m, &d| m.max(d));
         let floor = 1e-8 * max_diag + f64::MIN_POSITIVE;
-        for c in 0..self.n {
-            self.diag_scale[c] = vals[col_ptr[c]].max(floor);
+        for d in self.diag_scale.iter_mut() {
+            *d = d.max(floor);
         }
         self.skipped = skipped;
         self.linearized = true;
@@ -758,6 +855,22 @@ impl ShellSolver {
                 out[r] += self.jtj[p] * v[c];
                 if r != c {
                     out[c] += self.jtj[p] * v[r];
+                }
+            }
+        }
+        if let Some(ds) = &self.dense {
+            for (k, rows) in ds.rows.iter().enumerate() {
+                let w = ds.weight[k];
+                let mut p = [0.0; 3];
+                for &(u, b) in rows {
+                    for c in 0..3 {
+                        p[c] += b * v[3 * u as usize + c];
+                    }
+                }
+                for &(u, b) in rows {
+                    for c in 0..3 {
+                        out[3 * u as usize + c] += w * b * p[c];
+                    }
                 }
             }
         }
@@ -839,7 +952,7 @@ impl ShellSolver {
     }
 
     /// The damped matrix `JᵀJ + μD` of the last linearisation as an owned lower CSC matrix
-    /// (allocates; for tests and diagnostics).
+    /// (allocates; for tests and diagnostics). Dense supports' blocks are not in it.
     pub fn damped_matrix(&self, mu: f64) -> SparseColMat<usize, f64> {
         let mut vals = self.jtj.clone();
         let cp = self.pattern.col_ptr();
@@ -860,6 +973,16 @@ impl ShellSolver {
             self.damped[cp[c]] += mu * self.diag_scale[c];
         }
         let par = if parallel { Par::rayon(0) } else { Par::Seq };
+        if let Some(ds) = &mut self.dense {
+            return ds.step(
+                &self.pattern,
+                &self.damped,
+                &self.grad,
+                par,
+                parallel,
+                delta,
+            );
+        }
         if self.factor_scratch.as_ref().map(|s| s.0) != Some(parallel) {
             let req = self.factor.refactor_scratch(par);
             self.factor_scratch = Some((parallel, MemBuffer::new(req)));
@@ -883,7 +1006,8 @@ impl ShellSolver {
     /// Gauss–Newton model), accept if ρ > 1e−3 with `μ ← μ·max(1/3, 1 − (2ρ − 1)³)`, `ν ← 2`,
     /// else `μ ← μν`, `ν ← 2ν`. Stops on `E ≤ energy_tol`, a relative decrease below `rel_tol`
     /// twice in a row, a small step, or the iteration cap. `x` holds the result (the best
-    /// accepted iterate).
+    /// accepted iterate). A step accepted in the last allowed iteration is not re-linearised
+    /// (the linearisation state is then cleared; call [`ShellSolver::linearize`] to use it).
     pub fn solve(
         &mut self,
         targets: &ShellTargets,
@@ -954,7 +1078,13 @@ impl ShellSolver {
                     Some((e_new, rho)) => {
                         x.copy_from_slice(&x_trial);
                         let rel = (e - e_new) / e;
-                        e = self.linearize_unchecked(targets, x, opts.degenerate_height)?;
+                        // No re-linearisation after the last iteration: E(x) is e_new.
+                        e = if report.iterations < opts.max_iterations {
+                            self.linearize_unchecked(targets, x, opts.degenerate_height)?
+                        } else {
+                            self.linearized = false;
+                            e_new
+                        };
                         report.accepted += 1;
                         mu = (mu * (1.0 / 3.0f64).max(1.0 - (2.0 * rho - 1.0).powi(3))).max(MU_MIN);
                         nu = 2.0;
@@ -992,6 +1122,175 @@ impl ShellSolver {
         report.angle_rms = ar;
         report.total_seconds = t_start.elapsed().as_secs_f64();
         Ok(report)
+    }
+}
+
+impl DenseSupports {
+    fn new(solver: &ShellSolver, given: &[Vec<(u32, f64)>]) -> Result<Self> {
+        let nv = solver.topo.n_vertices;
+        let n = solver.n;
+        let mut index = std::collections::HashMap::new();
+        let mut rows = Vec::with_capacity(given.len());
+        for (k, g) in given.iter().enumerate() {
+            if g.is_empty() || g.iter().any(|&(v, b)| v as usize >= nv || !b.is_finite()) {
+                return Err(MeshError::Mismatch(format!(
+                    "dense support {k}: empty, out-of-range vertex or non-finite coefficient"
+                )));
+            }
+            index.insert(g.iter().map(|r| r.0).collect::<Vec<u32>>(), k);
+            let mut m: Vec<(u32, f64)> = g.clone();
+            m.sort_by_key(|r| r.0);
+            let mut merged: Vec<(u32, f64)> = Vec::with_capacity(m.len());
+            for (v, b) in m {
+                match merged.last_mut() {
+                    Some(last) if last.0 == v => last.1 += b,
+                    _ => merged.push((v, b)),
+                }
+            }
+            rows.push(merged);
+        }
+        let nk = rows.len();
+        // Supports containing each vertex, ascending, with the member index.
+        let mut of_vertex: Vec<Vec<(usize, usize)>> = vec![Vec::new(); nv];
+        for (k, r) in rows.iter().enumerate() {
+            for (mi, &(v, _)) in r.iter().enumerate() {
+                of_vertex[v as usize].push((k, mi));
+            }
+        }
+        let (cp, ri) = (solver.pattern.col_ptr(), solver.pattern.row_idx());
+        let nk3 = n + 3 * nk;
+        let mut col_ptr = vec![0usize; nk3 + 1];
+        let mut row_idx =
+            Vec::with_capacity(ri.len() + 3 * rows.iter().map(Vec::len).sum::<usize>() + 3 * nk);
+        let mut coupling_slots: Vec<Vec<[u32; 3]>> =
+            rows.iter().map(|r| vec![[0u32; 3]; r.len()]).collect();
+        for j in 0..n {
+            row_idx.extend_from_slice(&ri[cp[j]..cp[j + 1]]);
+            let (v, c) = (j / 3, j % 3);
+            for &(k, mi) in &of_vertex[v] {
+                coupling_slots[k][mi][c] = row_idx.len() as u32;
+                row_idx.push(n + 3 * k + c);
+            }
+            col_ptr[j + 1] = row_idx.len();
+        }
+        let mut diag_slots = vec![[0u32; 3]; nk];
+        for (k, d) in diag_slots.iter_mut().enumerate() {
+            for c in 0..3 {
+                d[c] = row_idx.len() as u32;
+                row_idx.push(n + 3 * k + c);
+                col_ptr[n + 3 * k + c + 1] = row_idx.len();
+            }
+        }
+        if row_idx.len() >= u32::MAX as usize {
+            return Err(MeshError::Numerical(
+                "quasi-definite pattern too large for the slot map".into(),
+            ));
+        }
+        let values = vec![0.0; row_idx.len()];
+        let pattern = SymbolicSparseColMat::new_checked(nk3, nk3, col_ptr, None, row_idx);
+        let factor = QuasiDefiniteFactor::symbolic_only(pattern.as_ref())?;
+        let solve_scratch = factor.make_scratch(1);
+        Ok(Self {
+            rows,
+            index,
+            pattern,
+            values,
+            coupling_slots,
+            diag_slots,
+            factor,
+            factor_scratch: None,
+            solve_scratch,
+            rhs: vec![0.0; nk3],
+            weight: vec![0.0; nk],
+            offset: vec![[0.0; 3]; nk],
+        })
+    }
+
+    /// The support whose registered rows equal `pc.rows` (point-to-point only).
+    fn lookup(&self, pc: &PointConstraint) -> Option<usize> {
+        if pc.normal.is_some() {
+            return None;
+        }
+        let key: Vec<u32> = pc.rows.iter().map(|r| r.0).collect();
+        let &k = self.index.get(&key)?;
+        // Same vertices; the coefficients must agree too (merged rows compared by sum).
+        let mut m: Vec<(u32, f64)> = pc.rows.clone();
+        m.sort_by_key(|r| r.0);
+        let mut it = self.rows[k].iter();
+        let mut i = 0;
+        while i < m.len() {
+            let (v, mut b) = m[i];
+            i += 1;
+            while i < m.len() && m[i].0 == v {
+                b += m[i].1;
+                i += 1;
+            }
+            match it.next() {
+                Some(&(rv, rb)) if rv == v && rb == b => {}
+                _ => return None,
+            }
+        }
+        Some(k)
+    }
+
+    /// Assembles `[JᵀJ + μD, Γᵀ; Γ, −W⁻¹]` from the damped values, factors it and solves for
+    /// δ (see the type docs). A support without constraints this time is decoupled (Γ = 0,
+    /// diagonal −1).
+    fn step(
+        &mut self,
+        pattern: &SymbolicSparseColMat<usize>,
+        damped: &[f64],
+        grad: &[f64],
+        par: Par,
+        parallel: bool,
+        delta: &mut [f64],
+    ) -> Result<()> {
+        let n = grad.len();
+        let (cp, kcp) = (pattern.col_ptr(), self.pattern.col_ptr());
+        for j in 0..n {
+            let len = cp[j + 1] - cp[j];
+            self.values[kcp[j]..kcp[j] + len].copy_from_slice(&damped[cp[j]..cp[j + 1]]);
+        }
+        for (d, g) in self.rhs[..n].iter_mut().zip(grad) {
+            *d = -g;
+        }
+        for (k, rows) in self.rows.iter().enumerate() {
+            let w = self.weight[k];
+            let active = w > 0.0;
+            for (mi, &(v, b)) in rows.iter().enumerate() {
+                for c in 0..3 {
+                    self.values[self.coupling_slots[k][mi][c] as usize] =
+                        if active { b } else { 0.0 };
+                    if active {
+                        // −(g − Γᵀ W (Γx − t̄)).
+                        self.rhs[3 * v as usize + c] += w * b * self.offset[k][c];
+                    }
+                }
+            }
+            for c in 0..3 {
+                self.values[self.diag_slots[k][c] as usize] = if active { -1.0 / w } else { -1.0 };
+                self.rhs[n + 3 * k + c] = if active { -self.offset[k][c] } else { 0.0 };
+            }
+        }
+        if self.factor_scratch.as_ref().map(|s| s.0) != Some(parallel) {
+            let req = self.factor.refactor_scratch(par);
+            self.factor_scratch = Some((parallel, MemBuffer::new(req)));
+        }
+        let scratch = &mut self.factor_scratch.as_mut().expect("set above").1;
+        let a = SparseColMatRef::new(self.pattern.as_ref(), &self.values);
+        self.factor.refactor_ref(a, par, scratch)?;
+        let m = self.rhs.len();
+        self.factor.solve_in_place(
+            MatMut::from_column_major_slice_mut(&mut self.rhs, m, 1),
+            &mut self.solve_scratch,
+        );
+        if self.rhs.iter().any(|x| !x.is_finite()) {
+            return Err(MeshError::Numerical(
+                "quasi-definite solve produced a non-finite step".into(),
+            ));
+        }
+        delta.copy_from_slice(&self.rhs[..n]);
+        Ok(())
     }
 }
 

@@ -3,10 +3,11 @@
 
 use crate::error::{MeshError, Result};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
 use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::linalg::cholesky::{
-    CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
+    CholeskySymbolicParams, LdltRef, LltRef, SymbolicCholesky, SymmetricOrdering,
     factorize_symbolic_cholesky,
 };
 use faer::sparse::{SparseColMat, SparseColMatRef, SymbolicSparseColMatRef, Triplet};
@@ -166,6 +167,82 @@ impl SpdFactor {
     /// caller's scratch (no allocation).
     pub fn solve_in_place(&self, rhs: MatMut<'_, f64>, scratch: &mut MemBuffer) {
         LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
+            Conj::No,
+            rhs,
+            Par::Seq,
+            MemStack::new(scratch),
+        );
+    }
+}
+
+/// `L D Lᵀ` factor of a sparse symmetric *quasi-definite* matrix `[A Bᵀ; B −C]` with A and C
+/// positive definite (a regularised KKT system), which has such a factorization without
+/// pivoting for every symmetric ordering (Vanderbei 1995); AMD ordering chosen once per
+/// pattern, numeric refactorization per matrix.
+pub struct QuasiDefiniteFactor {
+    symbolic: SymbolicCholesky<usize>,
+    values: Vec<f64>,
+}
+
+impl std::fmt::Debug for QuasiDefiniteFactor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "QuasiDefiniteFactor {{ n: {}, nnz(L): {} }}",
+            self.symbolic.nrows(),
+            self.values.len()
+        )
+    }
+}
+
+impl QuasiDefiniteFactor {
+    /// Symbolic analysis (AMD) of the lower-triangle pattern `a`; call
+    /// [`QuasiDefiniteFactor::refactor_ref`] before solving.
+    pub fn symbolic_only(a: SymbolicSparseColMatRef<'_, usize>) -> Result<Self> {
+        let symbolic =
+            factorize_symbolic_cholesky(a, Side::Lower, SymmetricOrdering::Amd, Default::default())
+                .map_err(|e| MeshError::Numerical(format!("symbolic LDLᵀ failed: {e:?}")))?;
+        Ok(Self {
+            values: vec![0.0; symbolic.len_val()],
+            symbolic,
+        })
+    }
+
+    /// Scratch needed by [`QuasiDefiniteFactor::refactor_ref`] with parallelism `par`.
+    pub fn refactor_scratch(&self, par: Par) -> StackReq {
+        self.symbolic
+            .factorize_numeric_ldlt_scratch::<f64>(par, Default::default())
+    }
+
+    /// Numeric `L D Lᵀ` of `a` (same pattern as analysed). Fails on a zero pivot.
+    pub fn refactor_ref(
+        &mut self,
+        a: SparseColMatRef<'_, usize, f64>,
+        par: Par,
+        scratch: &mut MemBuffer,
+    ) -> Result<()> {
+        self.symbolic
+            .factorize_numeric_ldlt(
+                &mut self.values,
+                a,
+                Side::Lower,
+                LdltRegularization::default(),
+                par,
+                MemStack::new(scratch),
+                Default::default(),
+            )
+            .map_err(|e| MeshError::Numerical(format!("LDLᵀ factorization failed: {e:?}")))?;
+        Ok(())
+    }
+
+    /// Allocates a scratch buffer for `ncols` right-hand sides.
+    pub fn make_scratch(&self, ncols: usize) -> MemBuffer {
+        MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(ncols, Par::Seq))
+    }
+
+    /// Solves `A X = B` in place, sequentially, with the caller's scratch.
+    pub fn solve_in_place(&self, rhs: MatMut<'_, f64>, scratch: &mut MemBuffer) {
+        LdltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
             Conj::No,
             rhs,
             Par::Seq,

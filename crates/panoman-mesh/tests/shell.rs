@@ -148,7 +148,7 @@ fn generic_problem(x: &[V3], topo: &Topology, seed: u64) -> (ShellTargets, Vec<V
     let f0 = topo.faces[2];
     t.points = vec![
         PointConstraint {
-            rows: vec![(0, 0.5), (5, 0.3), (9, 0.2)],
+            rows: vec![(0, 0.4), (5, 0.3), (9, 0.2), (0, 0.1)],
             target: [0.05, -0.1, 0.2],
             weight: 3.0 / (ml * ml),
             normal: None,
@@ -390,4 +390,101 @@ fn noisy_angles_exact_lengths_stay_nearly_isometric() {
     assert!(len_rms < 0.05 * noise, "c_B 0.1: length rms {len_rms}");
     assert!(ang_rms < 1.5 * noise, "c_B 0.1: angle rms {ang_rms}");
     assert!(s_err < g_err, "c_B 0.1: shell error {s_err} vs g {g_err}");
+}
+
+/// A wide point support (a keypoint regressor over many vertices) kept out of JᵀJ through the
+/// quasi-definite system gives the same energy, gradient, normal-matrix products, LM steps and
+/// solve as assembling its dense clique into the pattern.
+#[test]
+fn dense_support_matches_the_assembled_clique() {
+    let (x0, topo) = deformed_sphere(2);
+    let (mut targets, x) = generic_problem(&x0, &topo, 21);
+    let ml = mean_edge(&topo, &x0);
+    let nv = x0.len() as u32;
+    // Two supports over a third of the vertices each (one vertex listed twice), and a third
+    // registered support without a constraint (decoupled in the step).
+    let wide: Vec<Vec<(u32, f64)>> = (0..3)
+        .map(|s| {
+            let mut r: Vec<(u32, f64)> = (0..nv)
+                .filter(|v| v % 3 == s)
+                .map(|v| (v, 1.0 + 0.1 * (v % 7) as f64))
+                .collect();
+            r.push((s, 0.5));
+            let tot: f64 = r.iter().map(|p| p.1).sum();
+            r.iter().map(|&(v, b)| (v, b / tot)).collect()
+        })
+        .collect();
+    for (k, rows) in wide.iter().take(2).enumerate() {
+        targets.points.push(PointConstraint {
+            rows: rows.clone(),
+            target: [0.1 * k as f64, -0.05, 0.02],
+            weight: 5.0 / (ml * ml),
+            normal: None,
+        });
+    }
+    // Same support given twice with different targets (weights add, targets average).
+    targets.points.push(PointConstraint {
+        rows: wide[0].clone(),
+        target: [0.0, 0.1, 0.0],
+        weight: 2.0 / (ml * ml),
+        normal: None,
+    });
+    let mut pairs: Vec<(u32, u32)> = EXTRA_PAIRS.to_vec();
+    for rows in &wide {
+        for (p, &(a, _)) in rows.iter().enumerate() {
+            for &(b, _) in &rows[..p] {
+                if a != b {
+                    pairs.push((a.min(b), a.max(b)));
+                }
+            }
+        }
+    }
+    let mut clique = ShellSolver::with_extra_pairs(&topo, &pairs).unwrap();
+    let mut dense = ShellSolver::with_dense_supports(&topo, &EXTRA_PAIRS, &wide).unwrap();
+    assert!(
+        dense.nnz() < clique.nnz() / 2,
+        "{} vs {}",
+        dense.nnz(),
+        clique.nnz()
+    );
+    let e1 = clique.linearize(&targets, &x, 1e-6).unwrap();
+    let e2 = dense.linearize(&targets, &x, 1e-6).unwrap();
+    assert!((e1 - e2).abs() < 1e-12 * e1, "{e1} vs {e2}");
+    let eg = rel_err(dense.gradient(), clique.gradient());
+    assert!(eg < 1e-12, "gradient {eg:e}");
+    let n = 3 * x.len();
+    let mut rng = Rng(5);
+    let v: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
+    let (mut h1, mut h2) = (vec![0.0; n], vec![0.0; n]);
+    clique.normal_matrix_mul(&v, &mut h1);
+    dense.normal_matrix_mul(&v, &mut h2);
+    let eh = rel_err(&h2, &h1);
+    assert!(eh < 1e-12, "JᵀJ·v {eh:e}");
+    for mu in [1e-2, 1e-6] {
+        let (mut d1, mut d2) = (vec![0.0; n], vec![0.0; n]);
+        clique.step(mu, false, &mut d1).unwrap();
+        dense.step(mu, false, &mut d2).unwrap();
+        let ed = rel_err(&d2, &d1);
+        println!("μ {mu:e}: quasi-definite vs clique step, relative difference {ed:.2e}");
+        assert!(ed < 1e-8, "step {ed:e}");
+    }
+    let opts = ShellOptions {
+        max_iterations: 6,
+        mu_init: 1e-3,
+        parallel_factor: false,
+        ..Default::default()
+    };
+    let (mut y1, mut y2) = (x.clone(), x.clone());
+    let r1 = clique.solve(&targets, &mut y1, &opts).unwrap();
+    let r2 = dense.solve(&targets, &mut y2, &opts).unwrap();
+    assert_eq!(r1.accepted, r2.accepted);
+    let last = |r: &panoman_mesh::shell::ShellReport| *r.energies.last().unwrap();
+    assert!(last(&r1) < 0.5 * r1.energies[0]);
+    assert!((last(&r1) - last(&r2)).abs() < 1e-8 * last(&r1));
+    let dmax = y1
+        .iter()
+        .zip(&y2)
+        .map(|(a, b)| norm(sub(*a, *b)))
+        .fold(0.0, f64::max);
+    assert!(dmax < 1e-8 * ml, "solutions differ by {dmax:e}");
 }
