@@ -27,8 +27,8 @@
 use crate::error::{FitError, Result};
 use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences};
 use panoman_human::keypoints::{KeypointGroup, KeypointsFile};
-use panoman_mesh::align::rigid_align;
-use panoman_mesh::geom::{V3, norm, sub};
+use panoman_mesh::align::{Rigid, axis_angle, rigid_align};
+use panoman_mesh::geom::{V3, add, dot, matmul, matvec, norm, scale, sub};
 use panoman_mesh::shell::{
     Handle, PointConstraint, ShellOptions, ShellReport, ShellSolver, ShellTargets,
 };
@@ -46,6 +46,10 @@ pub const TORSO_KEYPOINTS: [&str; 6] = [
     "l_hip",
     "r_hip",
 ];
+
+/// Keypoint regressor rows with more vertices than this are kept out of the shell solver's
+/// JᵀJ pattern ([`ShellSolver::with_dense_supports`]).
+pub const DENSE_SUPPORT: usize = 64;
 
 /// Controls of a fit.
 #[derive(Clone, Debug)]
@@ -86,13 +90,15 @@ pub struct FitOptions {
     /// Start the V-steps from the initializer's mesh (e.g. the IK rig mesh, or the previous
     /// frame) instead of the guidance pose `g(B_P(α, β))`. Default true.
     pub start_from_init_mesh: bool,
-    /// λ_T: temporal term `λ_T/ℓ̄² Σ_v |x_v − x_v^prev|²` toward the previous frame's fit
-    /// (sequences only). Default 0.01.
+    /// λ_T: temporal term `λ_T/ℓ̄² Σ_v |x_v − x̂_v|²` toward the previous frame's fit carried by
+    /// the skeletal motion (see [`Previous::init`]; sequences only). Default 0.01.
     pub temporal_vertex_weight: f64,
     /// τ: temporal smoothing of β, `β ← (β_LS + τ β_prev)/(1 + τ)` after each β-step (the
     /// minimiser of `|β − β_LS|² + τ|β − β_prev|²` in the encoder's metric up to its
     /// conditioning; sequences only). Default 0.5.
     pub temporal_beta: f64,
+    /// How the parameters are placed. Default [`Placement::Aligned`].
+    pub placement: Placement,
 }
 
 impl Default for FitOptions {
@@ -114,16 +120,20 @@ impl Default for FitOptions {
             start_from_init_mesh: true,
             temporal_vertex_weight: 0.01,
             temporal_beta: 0.5,
+            placement: Placement::Aligned,
         }
     }
 }
 
-/// Options for warm-started frames of a sequence: the IK mesh of a warm-started IK is already
-/// close, so the V-step takes 2 LM iterations (measured on a 24-frame clip, full template:
-/// 616 ms per frame with 2, 779 ms with 4, the same error to 0.05 mm).
+/// Options for warm-started frames of a sequence. The IK mesh of a warm-started IK is
+/// already close and the shell energy flattens after one accepted LM step (measured on a
+/// 12-frame clip, full template: 2 iterations reject their second step; 1 iteration gives
+/// the same error), so the V-step takes one iteration; the placement is propagated from the
+/// previous frame instead of re-solving `g`.
 pub fn warm_fit_options() -> FitOptions {
     FitOptions {
-        step_iterations: 2,
+        step_iterations: 1,
+        placement: Placement::Propagated,
         ..FitOptions::default()
     }
 }
@@ -156,9 +166,37 @@ pub struct Constraints {
     pub points: Option<(Vec<V3>, Option<Vec<V3>>)>,
     /// Parameter edits: α (when non-empty) and the β blocks present here are held fixed.
     pub fixed: Option<Params>,
-    /// The previous frame's fit (vertices and parameters) for the temporal terms of a
-    /// sequence (see [`FitOptions::temporal_vertex_weight`], [`FitOptions::temporal_beta`]).
-    pub previous: Option<(Vec<V3>, Params)>,
+    /// The previous frame of a sequence: warm start, temporal terms
+    /// ([`FitOptions::temporal_vertex_weight`], [`FitOptions::temporal_beta`]), its shape α
+    /// (kept for the whole sequence) and its placement ([`Placement::Propagated`]).
+    pub previous: Option<Previous>,
+}
+
+/// The previous frame of a sequence.
+#[derive(Clone, Debug)]
+pub struct Previous {
+    /// Its fit.
+    pub vertices: Vec<V3>,
+    /// Its parameters, with their placement.
+    pub params: Params,
+    /// Its initializer's mesh (the IK mesh). With it the temporal vertex target is the previous
+    /// fit carried along by the skeletal motion, `x_prev + (x_init − x_init,prev)`, so that the
+    /// term smooths the non-skeletal detail without lagging behind the motion; without it the
+    /// target is `x_prev`.
+    pub init: Option<Vec<V3>>,
+}
+
+/// How a fit's parameters get their rigid placement (`rotation`, `translation`: the motion
+/// that puts `B_P(α, β)`, built in the gauge of `B_S(α)`, onto the fitted vertices).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Placement {
+    /// Least-squares rigid alignment of `B_P(α, β)` (one `g` solve, about 0.4 s on the full
+    /// template) to the fit.
+    Aligned,
+    /// In a sequence: the previous frame's placement followed by the rigid motion of the
+    /// fit's torso (vertices within 0.12 m of the neck–pelvis axis of the mean shape) since
+    /// the previous frame; no `g` solve. `Aligned` when there is no previous frame.
+    Propagated,
 }
 
 /// Where the fit starts: a mesh in template topology and its rest shape (from skeletal IK, or
@@ -269,6 +307,10 @@ pub struct Fitter<'m> {
     solver: ShellSolver,
     vf: VertexFaces,
     mean_edge: f64,
+    /// 1 on the torso vertices of [`Placement::Propagated`], 0 elsewhere.
+    torso_weights: Vec<f64>,
+    /// The rest geometry of the last fit's α (a sequence keeps α).
+    rest_cache: Option<(Vec<f64>, RestGeometry)>,
 }
 
 impl<'m> Fitter<'m> {
@@ -276,27 +318,41 @@ impl<'m> Fitter<'m> {
     pub fn new(model: &'m PanoManModel) -> Result<Self> {
         let ev = Evaluator::new(model)?;
         let topo = ev.topology().clone();
+        // Narrow regressors (face landmarks, hand joints) couple their vertices in JᵀJ; wide
+        // ones (body joints, 200 vertices) are dense supports, solved through the
+        // quasi-definite system instead of a 200-vertex clique each (full template: JᵀJ
+        // 3.24M → 0.91M entries, one LM iteration 125 → 90 ms).
         let mut extra = Vec::new();
+        let mut dense = Vec::new();
         for row in &model.keypoints.rows {
+            if row.len() > DENSE_SUPPORT {
+                dense.push(row.clone());
+                continue;
+            }
             for (p, &(a, _)) in row.iter().enumerate() {
                 for &(b, _) in &row[..p] {
-                    extra.push((a.min(b), a.max(b)));
+                    if a != b {
+                        extra.push((a.min(b), a.max(b)));
+                    }
                 }
             }
         }
         extra.sort_unstable();
         extra.dedup();
-        let solver = ShellSolver::with_extra_pairs(&topo, &extra)?;
+        let solver = ShellSolver::with_dense_supports(&topo, &extra, &dense)?;
         let vf = VertexFaces::new(&topo);
         let rest = model.rest_shape(&[]);
         let rg = RestGeometry::new(&topo, &rest)?;
         let mean_edge = rg.lengths.iter().sum::<f64>() / rg.lengths.len().max(1) as f64;
+        let torso_weights = torso_weights(model, &rest);
         Ok(Fitter {
             model,
             ev,
             solver,
             vf,
             mean_edge,
+            torso_weights,
+            rest_cache: None,
         })
     }
 
@@ -369,13 +425,22 @@ impl<'m> Fitter<'m> {
         if let Some(f) = &c.fixed {
             f.validate(self.model).map_err(FitError::Invalid)?;
         }
-        if let Some((prev, _)) = &c.previous
-            && prev.len() != nv
-        {
-            return Err(FitError::Invalid(format!(
-                "previous frame has {} vertices, the model has {nv}",
-                prev.len()
-            )));
+        if let Some(prev) = &c.previous {
+            for (what, len) in [
+                ("vertices", Some(prev.vertices.len())),
+                ("initializer vertices", prev.init.as_ref().map(Vec::len)),
+            ] {
+                if let Some(len) = len
+                    && len != nv
+                {
+                    return Err(FitError::Invalid(format!(
+                        "previous frame has {len} {what}, the model has {nv}"
+                    )));
+                }
+            }
+            prev.params
+                .validate(self.model)
+                .map_err(FitError::Invalid)?;
         }
         Ok(())
     }
@@ -398,11 +463,14 @@ impl<'m> Fitter<'m> {
         out
     }
 
+    /// Keypoint, handle and temporal terms (`init`: this frame's initializer mesh, which
+    /// carries the previous fit along the skeletal motion, see [`Previous::init`]).
     fn constraint_targets(
         &self,
         targets: &mut ShellTargets,
         kp: &[(usize, V3, f64)],
         c: &Constraints,
+        init: &[V3],
         opts: &FitOptions,
     ) {
         let l2 = self.mean_edge * self.mean_edge;
@@ -424,14 +492,18 @@ impl<'m> Fitter<'m> {
                 weight: opts.handle_weight * h.weight / l2,
             })
             .collect();
-        if let Some((prev, _)) = &c.previous
+        if let Some(prev) = &c.previous
             && opts.temporal_vertex_weight > 0.0
         {
+            let carried = |v: usize| match &prev.init {
+                Some(a) => add(prev.vertices[v], sub(init[v], a[v])),
+                None => prev.vertices[v],
+            };
             targets
                 .handles
-                .extend(prev.iter().enumerate().map(|(v, &p)| Handle {
+                .extend((0..prev.vertices.len()).map(|v| Handle {
                     vertex: v as u32,
-                    position: p,
+                    position: carried(v),
                     weight: opts.temporal_vertex_weight / l2,
                 }));
         }
@@ -463,7 +535,7 @@ impl<'m> Fitter<'m> {
         iterations: usize,
         opts: &FitOptions,
     ) -> Result<ShellReport> {
-        Ok(self.solver.solve(
+        let r = self.solver.solve(
             targets,
             x,
             &ShellOptions {
@@ -472,7 +544,8 @@ impl<'m> Fitter<'m> {
                 parallel_factor: opts.parallel_factor,
                 ..Default::default()
             },
-        )?)
+        )?;
+        Ok(r)
     }
 
     /// β-step: least-squares β of V's RL/RA w.r.t. `B_S(α)`; fixed blocks keep their values.
@@ -495,12 +568,12 @@ impl<'m> Fitter<'m> {
                 self.ev.encode_beta(&rla, params, Some(&r))?;
             }
         }
-        if let Some((_, prev)) = &c.previous
+        if let Some(prev) = &c.previous
             && opts.temporal_beta > 0.0
         {
             let tau = opts.temporal_beta;
             for (name, b) in params.beta.iter_mut() {
-                if let Some(pb) = prev.beta.get(name)
+                if let Some(pb) = prev.params.beta.get(name)
                     && pb.len() == b.len()
                 {
                     for (x, p) in b.iter_mut().zip(pb) {
@@ -532,16 +605,25 @@ impl<'m> Fitter<'m> {
         }
         let t0 = Instant::now();
         let mut stages = Vec::new();
-        // Initial parameters: α from the rest shape, β by projection of the initial mesh.
+        // Initial parameters: α fixed, kept from the previous frame of a sequence, or the
+        // projection of the initializer's rest shape; β by projection of the initial mesh.
         let t = Instant::now();
-        let mut params = self.ev.encode(&init.posed, Some(&init.rest), false)?;
-        if let Some(f) = &c.fixed
-            && !f.alpha.is_empty()
-        {
-            params.alpha = f.alpha.clone();
-        }
-        let rest = self.model.rest_shape(&params.alpha);
-        let rg = RestGeometry::new(self.ev.topology(), &rest)?;
+        let alpha = match (&c.fixed, &c.previous) {
+            (Some(f), _) if !f.alpha.is_empty() => f.alpha.clone(),
+            (_, Some(prev)) => prev.params.alpha.clone(),
+            _ => {
+                let flat: Vec<f64> = init.rest.iter().flatten().copied().collect();
+                self.model.shape.project(&flat)
+            }
+        };
+        let rg = match self.rest_cache.take() {
+            Some((a, rg)) if a == alpha => rg,
+            _ => RestGeometry::new(self.ev.topology(), &self.model.rest_shape(&alpha))?,
+        };
+        let mut params = Params {
+            alpha,
+            ..Default::default()
+        };
         self.beta_step(&init.posed, &rg, &mut params, c, opts)?;
         if opts.motion_init
             && let Some(theta) = &init.theta
@@ -584,7 +666,7 @@ impl<'m> Fitter<'m> {
         if !torso.is_empty() && opts.torso_iterations > 0 {
             let t = Instant::now();
             let mut targets = self.guidance(&params, &rg, &x, opts)?;
-            self.constraint_targets(&mut targets, &torso, c, opts);
+            self.constraint_targets(&mut targets, &torso, c, &init.posed, opts);
             let rep = self.v_step(&targets, &mut x, opts.torso_iterations, opts)?;
             stages.push(StageReport::of_solve("torso", t, &rep, None));
         }
@@ -599,7 +681,7 @@ impl<'m> Fitter<'m> {
                     self.beta_step(&x, &rg, &mut params, c, opts)?;
                 }
                 let mut targets = self.guidance(&params, &rg, &x, opts)?;
-                self.constraint_targets(&mut targets, &all_kp, c, opts);
+                self.constraint_targets(&mut targets, &all_kp, c, &init.posed, opts);
                 let rep = self.v_step(&targets, &mut x, opts.step_iterations, opts)?;
                 its += rep.iterations;
                 acc += rep.accepted;
@@ -623,7 +705,7 @@ impl<'m> Fitter<'m> {
                 let t = Instant::now();
                 self.beta_step(&x, &rg, &mut params, c, opts)?;
                 let mut targets = self.guidance(&params, &rg, &x, opts)?;
-                self.constraint_targets(&mut targets, &all_kp, c, opts);
+                self.constraint_targets(&mut targets, &all_kp, c, &init.posed, opts);
                 let (cons, stats) = correspondences(
                     self.ev.topology(),
                     &self.vf,
@@ -646,12 +728,27 @@ impl<'m> Fitter<'m> {
         // Final parameters and the rigid motion placing B_P(α, β) on the fit.
         let t = Instant::now();
         self.beta_step(&x, &rg, &mut params, c, opts)?;
-        params.rotation = [0.0; 3];
-        params.translation = [0.0; 3];
-        let guide = self.ev.pose(&params, opts.correction)?;
-        let m = rigid_align(&guide, &x, None);
-        params.rotation = rotation_vector(&m.r);
-        params.translation = m.t;
+        let placement = match (&c.previous, opts.placement) {
+            (Some(prev), Placement::Propagated) => {
+                // The torso patch's rigid motion since the previous frame, applied to the
+                // previous placement.
+                let k = rigid_align(&prev.vertices, &x, Some(&self.torso_weights));
+                let r0 = axis_angle_matrix(prev.params.rotation);
+                Rigid {
+                    r: matmul(&k.r, &r0),
+                    t: add(matvec(&k.r, prev.params.translation), k.t),
+                }
+            }
+            _ => {
+                params.rotation = [0.0; 3];
+                params.translation = [0.0; 3];
+                let guide = self.ev.pose(&params, opts.correction)?;
+                rigid_align(&guide, &x, None)
+            }
+        };
+        params.rotation = rotation_vector(&placement.r);
+        params.translation = placement.t;
+        self.rest_cache = Some((params.alpha.clone(), rg));
         stages.push(StageReport::timed("params", t));
         let report = FitReport {
             stages,
@@ -663,6 +760,57 @@ impl<'m> Fitter<'m> {
             params,
             report,
         })
+    }
+}
+
+/// Radius (m) around the neck–pelvis axis of the mean shape that selects the torso vertices of
+/// [`Placement::Propagated`] (chest, belly and back; the arms hang further out).
+const TORSO_RADIUS: f64 = 0.12;
+
+/// 1 on the vertices of `rest` within [`TORSO_RADIUS`] of the segment between the model's
+/// `neck` and `body_center` keypoints, 0 elsewhere (all 1 if the model lacks them or the
+/// selection is too small for a rigid fit).
+fn torso_weights(model: &PanoManModel, rest: &[V3]) -> Vec<f64> {
+    let k = model.keypoints.evaluate(rest);
+    let at = |name: &str| {
+        model
+            .keypoints
+            .names
+            .iter()
+            .position(|n| n == name)
+            .map(|i| k[i])
+    };
+    let (Some(a), Some(b)) = (at("neck"), at("body_center")) else {
+        return vec![1.0; rest.len()];
+    };
+    let ab = sub(b, a);
+    let l2 = dot(ab, ab).max(1e-12);
+    let w: Vec<f64> = rest
+        .iter()
+        .map(|&p| {
+            let s = (dot(sub(p, a), ab) / l2).clamp(0.0, 1.0);
+            let q = add(a, scale(ab, s));
+            if norm(sub(p, q)) < TORSO_RADIUS {
+                1.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    if w.iter().sum::<f64>() < 10.0 {
+        vec![1.0; rest.len()]
+    } else {
+        w
+    }
+}
+
+/// The rotation of an axis·angle vector (identity for 0).
+fn axis_angle_matrix(r: V3) -> [[f64; 3]; 3] {
+    let a = norm(r);
+    if a == 0.0 {
+        panoman_mesh::geom::IDENTITY
+    } else {
+        axis_angle(r, a)
     }
 }
 

@@ -11,6 +11,10 @@ pub mod icp;
 pub mod pipeline;
 
 pub use error::{FitError, Result};
-pub use fit::{Constraints, FitOptions, FitReport, FitResult, Fitter, Init, VertexHandle};
-pub use pipeline::{IkIcpOptions, Rig, fit_frame, ik_config_for_noise, ik_fit, ik_icp, init_of};
+pub use fit::{
+    Constraints, FitOptions, FitReport, FitResult, Fitter, Init, Placement, Previous, VertexHandle,
+};
+pub use pipeline::{
+    IkIcpOptions, Rig, Sequence, fit_frame, ik_config_for_noise, ik_fit, ik_icp, init_of,
+};
 pub mod twist;

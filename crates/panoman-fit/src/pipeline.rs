@@ -6,7 +6,7 @@
 //! points, re-matched per pass), so the shell fit starts from a mesh whose pose and body
 //! shape already follow the scan.
 use crate::error::{FitError, Result};
-use crate::fit::{Constraints, FitOptions, FitResult, Fitter, Init};
+use crate::fit::{Constraints, FitOptions, FitResult, Fitter, Init, Previous, warm_fit_options};
 use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences_on};
 use panoman_human::assets::AssetDir;
 use panoman_human::generator::{Generator, GeneratorOptions};
@@ -338,6 +338,83 @@ pub fn fit_frame(
     let init = init_of(&r, ik, rig.generator.bone_names());
     let fit = fitter.fit(c, &init, opts)?;
     Ok((r, fit))
+}
+
+/// Frame-to-frame state of a tracked sequence (paper §5.3 for sequences; Total Capture's
+/// temporal propagation): the previous frame's IK state warm-starts the IK, and its fit gives
+/// the temporal terms, the shape α kept for the sequence and the propagated placement
+/// ([`Previous`]). The first frame is fitted with the cold options, the next ones with the
+/// warm options.
+pub struct Sequence {
+    /// Options of the first frame. Default [`FitOptions::default`].
+    pub cold: FitOptions,
+    /// Options of the following frames. Default [`warm_fit_options`].
+    pub warm: FitOptions,
+    /// Skeletal IK settings.
+    pub ik: IkConfig,
+    /// Run every frame's IK cold (no warm start), e.g. for large motion between frames; the
+    /// temporal terms stay. Default false.
+    pub cold_ik: bool,
+    state: Option<IkState>,
+    previous: Option<Previous>,
+}
+
+impl Default for Sequence {
+    fn default() -> Self {
+        Sequence::new(
+            FitOptions::default(),
+            warm_fit_options(),
+            IkConfig::default(),
+            false,
+        )
+    }
+}
+
+impl Sequence {
+    /// A new sequence with the given options for the first and following frames and IK
+    /// settings (no frame fitted yet).
+    pub fn new(cold: FitOptions, warm: FitOptions, ik: IkConfig, cold_ik: bool) -> Self {
+        Sequence {
+            cold,
+            warm,
+            ik,
+            cold_ik,
+            state: None,
+            previous: None,
+        }
+    }
+
+    /// Fits the next frame (`c.previous` is set from the sequence) and records it.
+    pub fn fit_next(
+        &mut self,
+        rig: &Rig,
+        ik: &IkSolver<'_>,
+        fitter: &mut Fitter<'_>,
+        c: &Constraints,
+    ) -> Result<(IkResult, FitResult)> {
+        let c = Constraints {
+            previous: self.previous.clone(),
+            ..c.clone()
+        };
+        let warm = if self.cold_ik {
+            None
+        } else {
+            self.state.as_ref()
+        };
+        let opts = if self.previous.is_some() {
+            &self.warm
+        } else {
+            &self.cold
+        };
+        let (r, fit) = fit_frame(rig, ik, fitter, &c, &self.ik, opts, warm)?;
+        self.state = Some(r.state.clone());
+        self.previous = Some(Previous {
+            vertices: fit.vertices.clone(),
+            params: fit.params.clone(),
+            init: Some(r.posed.clone()),
+        });
+        Ok((r, fit))
+    }
 }
 
 /// The fit's starting point from an IK result: its posed and rest meshes and its skeleton pose

@@ -4,7 +4,7 @@
 //! the binary.
 
 use panoman_fit::fit::{FitOptions, keypoint_residuals};
-use panoman_fit::{Constraints, FitError, Fitter, Init, Rig, fit_frame, ik_fit};
+use panoman_fit::{Constraints, FitError, Fitter, Init, Rig, Sequence, fit_frame, ik_fit};
 use panoman_human::keypoints::{KeypointsFile, keypoint_index};
 use panoman_mesh::geom::{V3, norm, sub};
 use panoman_model::model::PanoManModel;
@@ -106,6 +106,73 @@ fn held_out_people_from_exact_keypoints() {
     // keypoint regressors alone are off by ~4 mm (body) and whose 1,229 vertices carry a far
     // coarser model (25 body components): 25 mm.
     assert!(e_pm < 0.025, "panoman mean error {:.2} mm", e_pm * 1e3);
+}
+
+/// A sequence whose second frame is the first one moved rigidly: the warm-started fit follows
+/// the motion (fit₁ ≈ M fit₀), and the propagated placement is the first frame's placement
+/// composed with M (a composition in the wrong order or a transposed rotation fails here); a
+/// third frame, back at the first pose, returns to it.
+#[test]
+fn sequence_follows_a_rigid_motion_and_propagates_the_placement() {
+    use panoman_mesh::align::axis_angle;
+    use panoman_mesh::geom::{add, matmul, matvec};
+    let (_, data, model_path) = trained();
+    let (model, rig) = model_and_rig(model_path);
+    let ik = rig.ik_solver().unwrap();
+    let mut fitter = Fitter::new(&model).unwrap();
+    let (truth, _) = held_out(data, 1).remove(0);
+    let r = axis_angle([0.2, 0.1, 1.0], 0.3);
+    let t = [0.05, -0.02, 0.01];
+    let moved: Vec<V3> = truth.iter().map(|&p| add(matvec(&r, p), t)).collect();
+    let mut seq = Sequence::default();
+    let mut fits = Vec::new();
+    for x in [&truth, &moved, &truth] {
+        let c = Constraints {
+            keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(x)),
+            ..Default::default()
+        };
+        fits.push(seq.fit_next(&rig, &ik, &mut fitter, &c).unwrap().1);
+    }
+    let (f0, f1, f2) = (&fits[0], &fits[1], &fits[2]);
+    let ml = fitter.mean_edge();
+    // The warm fit follows the motion to a fraction of an edge.
+    let e1 = mean_error(
+        &f1.vertices,
+        &f0.vertices
+            .iter()
+            .map(|&p| add(matvec(&r, p), t))
+            .collect::<Vec<_>>(),
+    );
+    assert!(e1 < 0.5 * ml, "moved fit off by {:.2} mm", e1 * 1e3);
+    assert!(
+        mean_error(&f2.vertices, &f0.vertices) < 0.5 * ml,
+        "the third frame did not return"
+    );
+    // Shape kept along the sequence; placement composed with the motion.
+    assert_eq!(f1.params.alpha, f0.params.alpha);
+    let rot = |v: V3| {
+        let a = norm(v);
+        if a == 0.0 {
+            panoman_mesh::geom::IDENTITY
+        } else {
+            axis_angle(v, a)
+        }
+    };
+    let r0 = rot(f0.params.rotation);
+    let r1 = rot(f1.params.rotation);
+    let expect = matmul(&r, &r0);
+    let dr = (0..3)
+        .flat_map(|i| (0..3).map(move |j| (i, j)))
+        .map(|(i, j)| (r1[i][j] - expect[i][j]).abs())
+        .fold(0.0, f64::max);
+    println!("rotation off by {dr:e}");
+    assert!(dr < 0.01, "rotation off by {dr:e}");
+    let t1 = add(matvec(&r, f0.params.translation), t);
+    assert!(
+        norm(sub(f1.params.translation, t1)) < 0.5 * ml,
+        "translation {:?} vs {t1:?}",
+        f1.params.translation
+    );
 }
 
 #[test]

@@ -7,7 +7,9 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use panoman_fit::fit::{FitOptions, FitResult, keypoint_residuals, warm_fit_options};
 use panoman_fit::twist::LimbSegment;
-use panoman_fit::{Constraints, Fitter, Rig, fit_frame, ik_config_for_noise, ik_fit, init_of};
+use panoman_fit::{
+    Constraints, Fitter, Rig, Sequence, fit_frame, ik_config_for_noise, ik_fit, init_of,
+};
 use panoman_human::clip::{Clip, ClipConfig};
 use panoman_human::dataset::Dataset;
 use panoman_human::ik::{IkConfig, IkSolver, IkState};
@@ -380,8 +382,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
         n_keyframes: preset.clip_keyframes,
     })?;
     let (_, frames) = clip.meshes(&rig.generator, &rig.map, rig.topology)?;
-    let warm_opts = warm_fit_options();
-    let mut prev: Option<(IkState, Vec<V3>, Params)> = None;
+    let mut seq = Sequence::new(opts.clone(), warm_fit_options(), ikc.clone(), false);
     let mut prev_lbs: Option<IkState> = None;
     let mut clip_rows: Vec<ClipRow> = Vec::new();
     let mut warm_times = Vec::new();
@@ -391,12 +392,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
         let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
         let c = Constraints {
             keypoints: kp,
-            previous: prev.as_ref().map(|(_, v, p)| (v.clone(), p.clone())),
             ..Default::default()
         };
-        let warm = prev.as_ref().map(|(s, _, _)| s);
-        let o = if warm.is_some() { &warm_opts } else { &opts };
-        let (ikr, fit) = fit_frame(&rig, &ik, &mut fitter, &c, &ikc, o, warm)?;
+        let (ikr, fit) = seq.fit_next(&rig, &ik, &mut fitter, &c)?;
         let lbs = ik_fit(
             &ik,
             &c,
@@ -427,7 +425,6 @@ pub fn run(a: EvalArgs) -> Result<()> {
             map_frame = Some((truth.clone(), fit.vertices.clone(), lbs.posed.clone()));
         }
         clip_rows.push((ep, el, secs, lbs.seconds));
-        prev = Some((ikr.state.clone(), fit.vertices.clone(), fit.params.clone()));
         prev_lbs = Some(lbs.state.clone());
         bar.inc(1);
     }

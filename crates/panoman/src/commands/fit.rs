@@ -5,7 +5,8 @@ use anyhow::{Context, Result, anyhow};
 use clap::{Args, ValueEnum};
 use panoman_fit::fit::{FitOptions, FitResult, VertexHandle, keypoint_residuals, warm_fit_options};
 use panoman_fit::{
-    Constraints, Fitter, IkIcpOptions, Rig, fit_frame, ik_config_for_noise, ik_fit, ik_icp,
+    Constraints, Fitter, IkIcpOptions, Rig, Sequence, fit_frame, ik_config_for_noise, ik_fit,
+    ik_icp,
 };
 use panoman_human::ik::{IkConfig, IkResult, IkState};
 use panoman_human::keypoints::KeypointsFile;
@@ -297,11 +298,15 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
     let ik = rig.ik_solver()?;
     let mut fitter = Fitter::new(&model)?;
     std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
-    let opts = FitOptions::default();
-    let warm_opts = warm_fit_options();
     let bar = crate::util::progress_bar(frames.len() as u64, "track");
-    // The previous frame: IK state (warm start), fitted vertices and parameters.
-    let mut prev: Option<(IkState, Vec<[f64; 3]>, Params)> = None;
+    let mut seq = Sequence::new(
+        FitOptions::default(),
+        warm_fit_options(),
+        IkConfig::default(),
+        a.cold,
+    );
+    // The LBS baseline's previous IK state (warm start).
+    let mut prev_lbs: Option<IkState> = None;
     let mut rows = Vec::new();
     for (f, (path, kp)) in frames.iter().zip(&kps).enumerate() {
         let stem = path
@@ -310,42 +315,26 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
             .unwrap_or_else(|| format!("{f:05}"));
         let c = Constraints {
             keypoints: kp.clone(),
-            previous: prev.as_ref().map(|(_, v, p)| (v.clone(), p.clone())),
-            ..Default::default()
-        };
-        let warm = if a.cold {
-            None
-        } else {
-            prev.as_ref().map(|(s, _, _)| s.clone())
-        };
-        let ikc = IkConfig {
-            initial_state: warm.clone(),
             ..Default::default()
         };
         let err = |e: panoman_fit::FitError| anyhow!("{}: {e}", path.display());
         let (vertices, seconds, res, stage_s) = match a.baseline {
             Some(Baseline::Lbs) => {
+                let ikc = IkConfig {
+                    initial_state: if a.cold { None } else { prev_lbs.take() },
+                    ..Default::default()
+                };
                 let r = ik_fit(&ik, &c, &ikc).map_err(err)?;
                 write_json(
                     &a.out.join(format!("{stem}.params.json")),
                     &r.to_json(rig.generator.bone_names()),
                 )?;
                 let res = keypoint_residuals(&model, kp, &r.posed);
-                prev = Some((r.state.clone(), r.posed.clone(), Params::default()));
+                prev_lbs = Some(r.state.clone());
                 (r.posed, r.seconds, res, json!({"ik": r.seconds}))
             }
             None => {
-                let o = if warm.is_some() { &warm_opts } else { &opts };
-                let (ikr, fit) = fit_frame(
-                    &rig,
-                    &ik,
-                    &mut fitter,
-                    &c,
-                    &IkConfig::default(),
-                    o,
-                    warm.as_ref(),
-                )
-                .map_err(err)?;
+                let (ikr, fit) = seq.fit_next(&rig, &ik, &mut fitter, &c).map_err(err)?;
                 fit.params
                     .write(&a.out.join(format!("{stem}.params.json")))?;
                 let mut st = serde_json::Map::new();
@@ -353,7 +342,6 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
                 for s in &fit.report.stages {
                     st.insert(s.name.clone(), s.seconds.into());
                 }
-                prev = Some((ikr.state.clone(), fit.vertices.clone(), fit.params.clone()));
                 (
                     fit.vertices,
                     ikr.seconds + fit.report.seconds,
