@@ -10,17 +10,19 @@
 //!    `P_l = (c_l, −h_l cos φ, −h_l sin φ)`; with `R̃_L`, `R̃_R` the frames of fL, fR measured
 //!    there by the same frame function, `Q_e = R̃_Lᵀ R̃_R`, and consistent world frames satisfy
 //!    `R_fR = R_fL Q_e` (the paper prints the transposed relation).
-//! 3. **Global frame solve.** `min Σ_e ‖R_fL Q_e − R_fR‖²_F` over free 3×3 matrices with one
-//!    gauge face fixed per connected component. In `Y_t = R_tᵀ` the normal equations are
-//!    `K Y = 0` with 3×3 blocks `K_tt = deg(t)·I`, `K_{fL,fR} = −Q_e`, `K_{fR,fL} = −Q_eᵀ` and
-//!    the three columns of `Y` decouple. Instead of factoring `K` (whose values change per
-//!    call), we solve it by preconditioned conjugate gradients with the exact inverse for
-//!    consistent data: if `D = blockdiag(R⁰_tᵀ)` holds frames consistent with the `Q_e`, then
-//!    `K = D (L ⊗ I₃) Dᵀ` with `L` the (constant) scalar dual-graph Laplacian, so
-//!    `M⁻¹ = D (L⁻¹ ⊗ I₃) Dᵀ`, factored once per topology. `R⁰` comes from propagating the
-//!    gauge frame along a BFS tree of the dual graph (`R_child = R_parent Q_e`), which is exact
-//!    for consistent data (zero PCG iterations) and a strong preconditioner otherwise.
-//! 4. **Projection** of every `Y_tᵀ` to SO(3) ([`crate::align::nearest_rotation`]).
+//! 3. **Global frame solve.** `min E_F = Σ_e ‖R_fL Q_e − R_fR‖²_F` over rotations, one gauge
+//!    face fixed per connected component. Start: the gauge frame propagated along a BFS tree
+//!    of the dual graph (`R_child = R_parent Q_e`), exact for consistent data (no iteration).
+//!    Then Gauss–Newton on SO(3) with world-frame increments `R_t ← exp([ω_t]×) R_t`: per
+//!    interior edge, with `s_e = vee(skew(R_fR Q_eᵀ R_fLᵀ))`, `∇_{fL} E_F = −4 s_e`,
+//!    `∇_{fR} E_F = +4 s_e`, and the Gauss–Newton Hessian `2JᵀJ` equals `4 (L ⊗ I₃)` at
+//!    consistency, `L` the scalar dual-graph Laplacian (degree on the diagonal, −1 per interior
+//!    edge), constant and factored once per topology; so `ω = −L⁻¹ (∇E_F/4)` (3 right-hand
+//!    sides), with a backtracking line search on E_F. Unlike the linear relaxation over free
+//!    3×3 matrices (`K Y = 0` with the gauge pinned), whose minimiser on non-integrable data
+//!    (model RL/RA) shrinks every frame toward 0 away from the gauge so that the projection
+//!    back to SO(3) is arbitrary, this minimises the frame energy over rotations themselves.
+//! 4. (no projection step: the iterates are rotations.)
 //! 5. **Poisson vertex solve.** `min Σ_t Σ_{(a→b)∈∂t} ‖x_b − x_a − R_t (q_b − q_a)‖²` with one
 //!    gauge vertex fixed per component: its normal matrix is the uniform graph Laplacian
 //!    (weight 2 per interior edge, 1 per boundary edge), factored once per topology.
@@ -28,7 +30,6 @@
 //! Everything that depends only on the topology lives in [`Reconstructor`]; per-call buffers
 //! live in [`GWorkspace`], so repeated calls do not allocate.
 
-use crate::align::nearest_rotation;
 use crate::error::{MeshError, Result};
 use crate::geom::{M3, V3, cross, from_cols, matmul, normalize, sub, transpose};
 use crate::rla::{RestGeometry, Rla};
@@ -77,14 +78,14 @@ pub struct Gauge {
 /// Statistics of one `g` call.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GStats {
-    /// PCG iterations of the frame solve (0 for exactly consistent data).
-    pub pcg_iterations: usize,
-    /// Final PCG residual `max_c ‖r_c‖₂` of the frame system.
-    pub frame_residual: f64,
-    /// Largest distance `‖Y_tᵀ − R_t‖_F` removed by the SO(3) projection (0 for consistent data).
-    pub max_projection: f64,
-    /// Whether the frame solve met its tolerance (false: it stopped at the iteration cap and the
-    /// result is the best iterate, still finite).
+    /// Gauss–Newton iterations of the frame solve (0 for exactly consistent data).
+    pub frame_iterations: usize,
+    /// Frame energy `E_F = Σ_e ‖R_fL Q_e − R_fR‖²_F` of the tree-propagated start.
+    pub frame_energy_start: f64,
+    /// Final frame energy.
+    pub frame_energy: f64,
+    /// Whether the frame solve met its tolerance (false: it stopped at the iteration cap with
+    /// the best iterate).
     pub frame_converged: bool,
     /// Target lengths raised to the floor `ℓ_r·MIN_RELATIVE_LENGTH` (RL < −1 + floor), by
     /// [`Reconstructor::reconstruct_rla`].
@@ -92,7 +93,7 @@ pub struct GStats {
 }
 
 /// Per-topology state of `g`: tables, gauge choice, BFS tree and the two constant Cholesky
-/// factors (dual-graph Laplacian for the frame preconditioner, vertex Laplacian for Poisson).
+/// factors (dual-graph Laplacian for the frame solve's Hessian, vertex Laplacian for Poisson).
 pub struct Reconstructor {
     topo: Topology,
     /// Per face: slot of each edge's first vertex in the face (`faces[f][slot] == edges[e][0]`
@@ -109,19 +110,11 @@ pub struct Reconstructor {
     vert_factor: SpdFactor,
     /// Vertex-Laplacian couplings to gauge vertices: (reduced vertex, component, weight).
     gauge_couplings: Vec<(u32, u32, f64)>,
-    /// Interior-edge degree of each face (diagonal of K).
-    face_degree: Vec<f64>,
-    /// Maximum PCG iterations of the frame solve (integrable data needs 0, model-like
-    /// blended RLA ~30; beyond the cap the best iterate is used).
-    pub max_pcg_iterations: usize,
-    /// Absolute PCG tolerance on each column's residual, relative to sqrt(#unknown faces).
-    pub pcg_tolerance: f64,
-    /// PCG stops once the residual fell by this factor from its initial value.
-    pub pcg_relative_tolerance: f64,
-    /// Preconditioner refreshes (passes) of the frame solve.
-    pub pcg_passes: usize,
-    /// Residual reduction that ends a pass before the last.
-    pub pcg_pass_reduction: f64,
+    /// Iteration cap of the frame solve's Gauss–Newton (integrable data needs 0; model-like
+    /// blended RLA on the full template ~10–30).
+    pub max_frame_iterations: usize,
+    /// The frame solve stops when an iteration lowers E_F by less than this fraction.
+    pub frame_tolerance: f64,
 }
 
 impl std::fmt::Debug for Reconstructor {
@@ -144,16 +137,17 @@ pub struct GWorkspace {
     local: Vec<[f64; 3]>,
     /// Per edge: connection map Q_e (identity on boundary edges).
     conn: Vec<M3>,
-    /// Tree-propagated frames R⁰_t.
-    frames0: Vec<M3>,
-    /// Frame unknowns Y_t = R_tᵀ, then the projected frames R_t.
-    y: Vec<M3>,
-    r: Vec<M3>,
-    z: Vec<M3>,
-    p: Vec<M3>,
-    kp: Vec<M3>,
-    pre: Mat<f64>,
-    pre_scratch: [MemBuffer; 2],
+    /// Face frames R_t (tree-propagated, then the frame solve's iterate).
+    frames: Vec<M3>,
+    /// The frames before a line-search trial.
+    frames_prev: Vec<M3>,
+    /// Per edge: `s_e` of the frame gradient (module docs).
+    s_edge: Vec<V3>,
+    /// Per edge chunk: partial sums of E_F (deterministic reduction).
+    chunk_sums: Vec<f64>,
+    /// Reduced face gradient / Gauss–Newton step (#non-gauge faces × 3).
+    step: Mat<f64>,
+    step_scratch: MemBuffer,
     vrhs: Mat<f64>,
     v_scratch: MemBuffer,
     /// Statistics of the last call.
@@ -315,12 +309,8 @@ impl Reconstructor {
             dual_factor,
             vert_factor,
             gauge_couplings,
-            face_degree,
-            max_pcg_iterations: 60,
-            pcg_tolerance: 1e-13,
-            pcg_relative_tolerance: 1e-6,
-            pcg_passes: 4,
-            pcg_pass_reduction: 1e-2,
+            max_frame_iterations: 50,
+            frame_tolerance: 1e-8,
         })
     }
 
@@ -382,17 +372,12 @@ impl Reconstructor {
             angles: vec![0.0; ne],
             local: vec![[0.0; 3]; nf],
             conn: vec![crate::geom::IDENTITY; ne],
-            frames0: vec![crate::geom::IDENTITY; nf],
-            y: vec![[[0.0; 3]; 3]; nf],
-            r: vec![[[0.0; 3]; 3]; nf],
-            z: vec![[[0.0; 3]; 3]; nf],
-            p: vec![[[0.0; 3]; 3]; nf],
-            kp: vec![[[0.0; 3]; 3]; nf],
-            pre: Mat::zeros(nfr, 9),
-            pre_scratch: [
-                self.dual_factor.make_scratch(5),
-                self.dual_factor.make_scratch(4),
-            ],
+            frames: vec![crate::geom::IDENTITY; nf],
+            frames_prev: vec![crate::geom::IDENTITY; nf],
+            s_edge: vec![[0.0; 3]; ne],
+            chunk_sums: vec![0.0; ne.div_ceil(FACE_CHUNK)],
+            step: Mat::zeros(nfr, 3),
+            step_scratch: self.dual_factor.make_scratch(3),
             vrhs: Mat::zeros(nvr, 3),
             v_scratch: self.vert_factor.make_scratch(3),
             stats: GStats::default(),
@@ -450,7 +435,7 @@ impl Reconstructor {
         out: &mut [V3],
     ) -> Result<GStats> {
         let topo = &self.topo;
-        let (nf, ne, nv) = (topo.n_faces(), topo.n_edges(), topo.n_vertices);
+        let (ne, nv) = (topo.n_edges(), topo.n_vertices);
         if lengths.len() != ne || angles.len() != ne {
             return Err(MeshError::Mismatch(format!(
                 "{} target lengths and {} angles for {ne} edges",
@@ -517,45 +502,24 @@ impl Reconstructor {
                 }
             });
 
-        // 3a. Tree-propagated frames R⁰ (exact for consistent data).
+        // 3a. Tree-propagated frames (exact for consistent data).
         for (comp, &g) in self.gauge_faces.iter().enumerate() {
-            ws.frames0[g as usize] = gauge.frames[comp];
+            ws.frames[g as usize] = gauge.frames[comp];
         }
         for &(f, parent, e) in &self.tree {
-            let rp = ws.frames0[parent as usize];
+            let rp = ws.frames[parent as usize];
             let q = &ws.conn[e as usize];
-            ws.frames0[f as usize] = if topo.edge_faces[e as usize][0] == parent {
+            ws.frames[f as usize] = if topo.edge_faces[e as usize][0] == parent {
                 matmul(&rp, q)
             } else {
                 matmul(&rp, &transpose(q))
             };
         }
-        // 3b. PCG on K Y = 0 with fixed gauge blocks, initial guess Y⁰ = R⁰ᵀ.
-        for f in 0..nf {
-            ws.y[f] = transpose(&ws.frames0[f]);
-        }
-        let stats = self.frame_pcg(ws)?;
-
-        // 4. Projection to SO(3).
-        let max_proj =
-            ws.y.par_chunks_mut(FACE_CHUNK)
-                .map(|chunk| {
-                    let mut m = 0.0f64;
-                    for y in chunk {
-                        let yt = transpose(y);
-                        let r = nearest_rotation(&yt);
-                        m = m.max(crate::geom::frobenius_diff(&yt, &r));
-                        *y = r;
-                    }
-                    m
-                })
-                .reduce(|| 0.0, f64::max);
-        for (comp, &g) in self.gauge_faces.iter().enumerate() {
-            ws.y[g as usize] = gauge.frames[comp];
-        }
+        // 3b. Gauss–Newton on SO(3) (module docs).
+        let frame_stats = self.frame_solve(ws)?;
 
         // 5. Poisson vertex solve.
-        let frames = &ws.y;
+        let frames = &ws.frames;
         let vrhs = &mut ws.vrhs;
         vrhs.fill(0.0);
         let mut add = |v: u32, d: V3, sgn: f64| {
@@ -612,233 +576,142 @@ impl Reconstructor {
                 "g produced a non-finite position at vertex {v}"
             )));
         }
-        ws.stats = GStats {
-            max_projection: max_proj,
-            ..stats
-        };
+        ws.stats = frame_stats;
         Ok(ws.stats)
     }
 
-    /// `(K X)_t` for non-gauge faces `t` (X's gauge blocks are read as given).
-    fn apply_k(&self, x: &[M3], conn: &[M3], out: &mut [M3]) {
+    /// E_F of `frames` (deterministic chunked sum).
+    fn frame_energy(&self, frames: &[M3], conn: &[M3], chunk_sums: &mut [f64]) -> f64 {
         let topo = &self.topo;
-        out.par_chunks_mut(FACE_CHUNK)
-            .enumerate()
-            .for_each(|(c, chunk)| {
-                for (off, o) in chunk.iter_mut().enumerate() {
-                    let t = c * FACE_CHUNK + off;
-                    if self.face_red[t] == NONE {
-                        *o = [[0.0; 3]; 3];
-                        continue;
-                    }
-                    let d = self.face_degree[t];
-                    let mut acc = x[t];
-                    for row in acc.iter_mut() {
-                        for v in row.iter_mut() {
-                            *v *= d;
-                        }
-                    }
-                    for &(s, e) in topo.dual_neighbors_of(t) {
-                        let q = &conn[e as usize];
-                        let xs = &x[s as usize];
-                        // t == fL: K_ts = −Q_e; t == fR: K_ts = −Q_eᵀ.
-                        if topo.edge_faces[e as usize][0] as usize == t {
-                            for r in 0..3 {
-                                for col in 0..3 {
-                                    acc[r][col] -= q[r][0] * xs[0][col]
-                                        + q[r][1] * xs[1][col]
-                                        + q[r][2] * xs[2][col];
-                                }
-                            }
-                        } else {
-                            for r in 0..3 {
-                                for col in 0..3 {
-                                    acc[r][col] -= q[0][r] * xs[0][col]
-                                        + q[1][r] * xs[1][col]
-                                        + q[2][r] * xs[2][col];
-                                }
-                            }
-                        }
-                    }
-                    *o = acc;
-                }
-            });
-    }
-
-    /// `Z = D (L⁻¹ ⊗ I₃) Dᵀ R` with `D = blockdiag(R⁰_tᵀ)`.
-    fn apply_precond(&self, ws: &mut GWorkspace) {
-        let pre = &mut ws.pre;
-        for (t, r) in ws.r.iter().enumerate() {
-            let rt = self.face_red[t];
-            if rt == NONE {
-                continue;
-            }
-            let m = matmul(&ws.frames0[t], r);
-            for a in 0..3 {
-                for b in 0..3 {
-                    pre[(rt as usize, 3 * a + b)] = m[a][b];
-                }
-            }
-        }
-        let (left, right) = pre.as_mut().split_at_col_mut(5);
-        let [s0, s1] = &mut ws.pre_scratch;
-        rayon::join(
-            || self.dual_factor.solve_in_place(left, s0),
-            || self.dual_factor.solve_in_place(right, s1),
-        );
-        for (t, z) in ws.z.iter_mut().enumerate() {
-            let rt = self.face_red[t];
-            if rt == NONE {
-                *z = [[0.0; 3]; 3];
-                continue;
-            }
-            let mut m = [[0.0; 3]; 3];
-            for a in 0..3 {
-                for b in 0..3 {
-                    m[a][b] = pre[(rt as usize, 3 * a + b)];
-                }
-            }
-            *z = matmul(&transpose(&ws.frames0[t]), &m);
-        }
-    }
-
-    /// Preconditioned CG on the three decoupled columns of `K Y = 0` (gauge blocks fixed).
-    ///
-    /// Runs in passes: each pass restarts CG with the preconditioner built from the current
-    /// frames (first the BFS-tree frames, then the SO(3) projection of the current iterate,
-    /// which for non-integrable data is far closer to the least-squares frames than the tree
-    /// propagation with its accumulated error). Stops when every column's residual is below
-    /// `pcg_tolerance·sqrt(n)` or below `pcg_relative_tolerance` times its initial value.
-    fn frame_pcg(&self, ws: &mut GWorkspace) -> Result<GStats> {
-        if self.n_face_red == 0 {
-            return Ok(GStats {
-                frame_converged: true,
-                ..GStats::default()
-            });
-        }
-        let nf = self.topo.n_faces();
-        let col_dot = |a: &[M3], b: &[M3]| -> [f64; 3] {
-            a.par_chunks(FACE_CHUNK)
-                .zip(b.par_chunks(FACE_CHUNK))
-                .map(|(ca, cb)| {
-                    let mut s = [0.0; 3];
-                    for (x, y) in ca.iter().zip(cb) {
-                        for row in 0..3 {
-                            for c in 0..3 {
-                                s[c] += x[row][c] * y[row][c];
-                            }
-                        }
-                    }
-                    s
+        chunk_sums.par_iter_mut().enumerate().for_each(|(c, sum)| {
+            let lo = c * FACE_CHUNK;
+            let hi = (lo + FACE_CHUNK).min(topo.n_edges());
+            *sum = (lo..hi)
+                .filter(|&e| topo.edge_faces[e][1] != NONE)
+                .map(|e| {
+                    let [fl, fr] = topo.edge_faces[e];
+                    let a = matmul(&frames[fl as usize], &conn[e]);
+                    crate::geom::frobenius_diff(&a, &frames[fr as usize]).powi(2)
                 })
-                .reduce(|| [0.0; 3], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]])
+                .sum();
+        });
+        chunk_sums.iter().sum()
+    }
+
+    /// Gauss–Newton on SO(3) for the frames in `ws.frames` (module docs, step 3): the
+    /// constant Hessian `4 (L ⊗ I₃)` through the dual-graph factor, backtracking on E_F.
+    fn frame_solve(&self, ws: &mut GWorkspace) -> Result<GStats> {
+        let topo = &self.topo;
+        let mut e = self.frame_energy(&ws.frames, &ws.conn, &mut ws.chunk_sums);
+        let mut stats = GStats {
+            frame_energy_start: e,
+            frame_energy: e,
+            frame_converged: true,
+            ..GStats::default()
         };
-        let rnorm = |r: &[M3]| -> f64 {
-            let d = col_dot(r, r);
-            d.iter().fold(0.0f64, |m, &x| m.max(x.sqrt()))
-        };
-        let abs_tol = self.pcg_tolerance * (self.n_face_red as f64).sqrt();
-        let mut total_it = 0;
-        let mut res = f64::INFINITY;
-        let mut tol = abs_tol;
-        for pass in 0..self.pcg_passes.max(1) {
-            if pass > 0 {
-                // Refresh the preconditioner's frames from the current iterate.
-                let y = &ws.y;
-                ws.frames0
+        if self.n_face_red == 0 || e <= 1e-24 * topo.n_edges() as f64 {
+            return Ok(stats);
+        }
+        stats.frame_converged = false;
+        for _ in 0..self.max_frame_iterations {
+            // s_e per interior edge.
+            let (frames, conn) = (&ws.frames, &ws.conn);
+            ws.s_edge
+                .par_chunks_mut(FACE_CHUNK)
+                .enumerate()
+                .for_each(|(c, chunk)| {
+                    for (off, s) in chunk.iter_mut().enumerate() {
+                        let e = c * FACE_CHUNK + off;
+                        let [fl, fr] = topo.edge_faces[e];
+                        *s = if fr == NONE {
+                            [0.0; 3]
+                        } else {
+                            let a = matmul(&frames[fl as usize], &conn[e]);
+                            let m = matmul(&frames[fr as usize], &transpose(&a));
+                            [
+                                0.5 * (m[2][1] - m[1][2]),
+                                0.5 * (m[0][2] - m[2][0]),
+                                0.5 * (m[1][0] - m[0][1]),
+                            ]
+                        };
+                    }
+                });
+            // ∇E_F/4 per non-gauge face, then ω = −L⁻¹(∇E_F/4).
+            for f in 0..topo.n_faces() {
+                let rf = self.face_red[f];
+                if rf == NONE {
+                    continue;
+                }
+                let mut g = [0.0; 3];
+                for &(_, edge) in topo.dual_neighbors_of(f) {
+                    let s = ws.s_edge[edge as usize];
+                    let sign = if topo.edge_faces[edge as usize][0] as usize == f {
+                        -1.0
+                    } else {
+                        1.0
+                    };
+                    for c in 0..3 {
+                        g[c] += sign * s[c];
+                    }
+                }
+                for c in 0..3 {
+                    ws.step[(rf as usize, c)] = g[c];
+                }
+            }
+            self.dual_factor
+                .solve_in_place(ws.step.as_mut(), &mut ws.step_scratch);
+            ws.frames_prev.copy_from_slice(&ws.frames);
+            let mut accepted = false;
+            let mut t = 1.0;
+            for _ in 0..8 {
+                let (step, prev) = (&ws.step, &ws.frames_prev);
+                ws.frames
                     .par_chunks_mut(FACE_CHUNK)
                     .enumerate()
                     .for_each(|(c, chunk)| {
-                        for (off, f0) in chunk.iter_mut().enumerate() {
-                            let t = c * FACE_CHUNK + off;
-                            if self.face_red[t] != NONE {
-                                *f0 = nearest_rotation(&transpose(&y[t]));
+                        for (off, r) in chunk.iter_mut().enumerate() {
+                            let f = c * FACE_CHUNK + off;
+                            let rf = self.face_red[f];
+                            if rf == NONE {
+                                continue;
                             }
+                            let w = [0, 1, 2].map(|k| -t * step[(rf as usize, k)]);
+                            let a = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+                            *r = if a > 0.0 {
+                                matmul(&crate::align::axis_angle(w, a), &prev[f])
+                            } else {
+                                prev[f]
+                            };
                         }
                     });
-            }
-            // r = −K Y (the right-hand side is 0; Y's gauge blocks carry the constraint).
-            let mut r = std::mem::take(&mut ws.r);
-            self.apply_k(&ws.y, &ws.conn, &mut r);
-            for b in r.iter_mut() {
-                for row in b.iter_mut() {
-                    for v in row.iter_mut() {
-                        *v = -*v;
+                let e_new = self.frame_energy(&ws.frames, &ws.conn, &mut ws.chunk_sums);
+                if e_new.is_finite() && e_new < e {
+                    stats.frame_iterations += 1;
+                    let rel = (e - e_new) / e;
+                    e = e_new;
+                    accepted = true;
+                    if rel < self.frame_tolerance {
+                        stats.frame_converged = true;
                     }
-                }
-            }
-            ws.r = r;
-            res = rnorm(&ws.r);
-            if pass == 0 {
-                tol = abs_tol.max(self.pcg_relative_tolerance * res);
-            }
-            if res <= tol {
-                break;
-            }
-            // A pass ends when it reduced the residual by `pass_reduction` (or hit its cap).
-            let pass_goal = if pass + 1 == self.pcg_passes.max(1) {
-                tol
-            } else {
-                tol.max(self.pcg_pass_reduction * res)
-            };
-            self.apply_precond(ws);
-            ws.p.copy_from_slice(&ws.z);
-            let mut rz = col_dot(&ws.r, &ws.z);
-            let mut it = 0;
-            while it < self.max_pcg_iterations && total_it < self.max_pcg_iterations {
-                it += 1;
-                total_it += 1;
-                let mut kp = std::mem::take(&mut ws.kp);
-                self.apply_k(&ws.p, &ws.conn, &mut kp);
-                ws.kp = kp;
-                let pkp = col_dot(&ws.p, &ws.kp);
-                let mut alpha = [0.0; 3];
-                for c in 0..3 {
-                    alpha[c] = if pkp[c] > 0.0 { rz[c] / pkp[c] } else { 0.0 };
-                }
-                for t in 0..nf {
-                    for row in 0..3 {
-                        for c in 0..3 {
-                            ws.y[t][row][c] += alpha[c] * ws.p[t][row][c];
-                            ws.r[t][row][c] -= alpha[c] * ws.kp[t][row][c];
-                        }
-                    }
-                }
-                res = rnorm(&ws.r);
-                if res <= pass_goal {
                     break;
                 }
-                self.apply_precond(ws);
-                let rz_new = col_dot(&ws.r, &ws.z);
-                let mut beta = [0.0; 3];
-                for c in 0..3 {
-                    beta[c] = if rz[c] > 0.0 { rz_new[c] / rz[c] } else { 0.0 };
-                }
-                rz = rz_new;
-                for t in 0..nf {
-                    for row in 0..3 {
-                        for c in 0..3 {
-                            ws.p[t][row][c] = ws.z[t][row][c] + beta[c] * ws.p[t][row][c];
-                        }
-                    }
-                }
+                t *= 0.5;
             }
-            if res <= tol || total_it >= self.max_pcg_iterations {
+            if !accepted {
+                ws.frames.copy_from_slice(&ws.frames_prev);
+                stats.frame_converged = true;
+            }
+            if stats.frame_converged {
                 break;
             }
         }
-        if !res.is_finite() {
+        if !e.is_finite() {
             return Err(MeshError::Numerical(
-                "frame solve diverged (non-finite residual)".into(),
+                "frame solve diverged (non-finite energy)".into(),
             ));
         }
-        Ok(GStats {
-            pcg_iterations: total_it,
-            frame_residual: res,
-            max_projection: 0.0,
-            frame_converged: res <= tol,
-            clamped_lengths: 0,
-        })
+        stats.frame_energy = e;
+        Ok(stats)
     }
 }
 

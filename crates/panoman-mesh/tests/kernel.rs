@@ -440,7 +440,7 @@ fn g_round_trip_random_gauge_open_and_multi_component() {
         .unwrap();
     let (max, _) = aligned_error(&out, &posed);
     assert!(max < 1e-9 * bbox_diag(&posed), "{max}");
-    assert!(ws.stats.pcg_iterations <= 2, "{:?}", ws.stats);
+    assert!(ws.stats.frame_iterations <= 2, "{:?}", ws.stats);
 
     // Open mesh (boundary edges have no RA).
     let (g_rest, g_f) = grid(20);

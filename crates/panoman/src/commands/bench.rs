@@ -121,11 +121,11 @@ fn bench_topology(rep: &Reporter, tag: &str, rest: &TriMesh, runs: usize) -> Res
         rec.reconstruct_rla(&mut ws, &rg, &rla, &gauge, &mut out)
             .expect("g");
     });
-    let it = ws.stats.pcg_iterations;
+    let it = ws.stats.frame_iterations;
     rep.report(
         &format!("g_{tag}"),
         &t,
-        &format!("(integrable RLA, {it} PCG iterations)"),
+        &format!("(integrable RLA, {it} frame iterations)"),
     );
     let mut noisy = rla.clone();
     add_rla_noise(&mut noisy, 0.002, 0.01, 7);
@@ -133,11 +133,11 @@ fn bench_topology(rep: &Reporter, tag: &str, rest: &TriMesh, runs: usize) -> Res
         rec.reconstruct_rla(&mut ws, &rg, &noisy, &gauge, &mut out)
             .expect("g");
     });
-    let it = ws.stats.pcg_iterations;
+    let it = ws.stats.frame_iterations;
     rep.report(
         &format!("g_{tag}_noisy"),
         &t,
-        &format!("(0.2 % length + 0.01 rad angle noise, {it} PCG iterations)"),
+        &format!("(0.2 % length + 0.01 rad angle noise, {it} frame iterations)"),
     );
     Ok(())
 }

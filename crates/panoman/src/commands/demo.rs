@@ -151,20 +151,20 @@ pub fn run(a: DemoArgs) -> Result<()> {
         &TriMesh::new(noisy_out.clone(), full.mesh.faces.clone()),
     )?;
     println!(
-        "      finite output; mean deviation {:.1} mm (max {:.1} mm), volume {:.4} → {:.4} m³, {:.0} ms, {} PCG iterations",
+        "      finite output; mean deviation {:.1} mm (max {:.1} mm), volume {:.4} → {:.4} m³, {:.0} ms, {} frame iterations",
         nmean * 1e3,
         nmax * 1e3,
         vol_posed,
         vol_noisy,
         noisy_ms,
-        noisy_stats.pcg_iterations
+        noisy_stats.frame_iterations
     );
 
     println!(
-        "      model-like noise (0.2 % length, 0.01 rad): mean deviation {:.1} mm (max {:.1} mm), {} PCG iterations",
+        "      model-like noise (0.2 % length, 0.01 rad): mean deviation {:.1} mm (max {:.1} mm), {} frame iterations",
         mmean * 1e3,
         mmax * 1e3,
-        ws.stats.pcg_iterations
+        ws.stats.frame_iterations
     );
     println!(
         "[6/9] picture: rest | posed | g(RLA) | g(RLA + 0.2 % / 0.01 rad noise) | g(RLA + 1 % / 0.05 rad)"
@@ -328,7 +328,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         "roundtrip": {"max_error_m": max, "mean_error_m": mean, "g_ms": g_ms, "setup_ms": setup_ms, "rla_ms": rla_ms},
         "mild_noise": {"mean_error_m": mmean, "max_error_m": mmax},
         "noisy": {"mean_error_m": nmean, "max_error_m": nmax, "g_ms": noisy_ms,
-                   "pcg_iterations": noisy_stats.pcg_iterations},
+                   "frame_iterations": noisy_stats.frame_iterations},
         "fit": {"panoman_mean_error_m": fit_err, "lbs_mean_error_m": lbs_err, "seconds": fit_s,
                 "ik_seconds": ikr.seconds},
         "total_s": t0.elapsed().as_secs_f64(),

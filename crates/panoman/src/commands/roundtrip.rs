@@ -115,7 +115,7 @@ pub fn run(a: RoundtripArgs) -> Result<()> {
                 "g_runs": times.len(),
                 "setup_ms": setup_ms,
                 "rla_ms": rla_ms,
-                "pcg_iterations": ws.stats.pcg_iterations,
+                "frame_iterations": ws.stats.frame_iterations,
                 "max_abs_rl": rl_max,
                 "max_abs_ra": ra_max,
             })
@@ -131,12 +131,12 @@ pub fn run(a: RoundtripArgs) -> Result<()> {
             ra_max
         );
         println!(
-            "time: g {:.1} ms (median of {}), RLA {:.1} ms, per-topology setup {:.1} ms, PCG iterations {}",
+            "time: g {:.1} ms (median of {}), RLA {:.1} ms, per-topology setup {:.1} ms, frame iterations {}",
             g_ms,
             times.len(),
             rla_ms,
             setup_ms,
-            ws.stats.pcg_iterations
+            ws.stats.frame_iterations
         );
     }
     Ok(())
