@@ -30,11 +30,11 @@ use crate::geom::{V3, cross, dot, norm, scale, sub};
 use crate::rla::{
     RestGeometry, Rla, check_positions, dihedral_angle, dihedral_gradient, wrap_angle,
 };
-use crate::sparse::{QuasiDefiniteFactor, SpdFactor};
+use crate::sparse::SpdFactor;
 use crate::topology::{NONE, Topology};
 use faer::dyn_stack::MemBuffer;
 use faer::sparse::{SparseColMat, SparseColMatRef, SymbolicSparseColMat};
-use faer::{MatMut, Par};
+use faer::MatMut;
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -441,7 +441,7 @@ struct DenseSupports {
     coupling_slots: Vec<Vec<[u32; 3]>>,
     /// Per support: the value offsets of the three diagonal entries of s_k.
     diag_slots: Vec<[u32; 3]>,
-    factor: QuasiDefiniteFactor,
+    factor: SpdFactor,
     factor_scratch: Option<(bool, MemBuffer)>,
     solve_scratch: MemBuffer,
     rhs: Vec<f64>,
@@ -972,24 +972,12 @@ impl ShellSolver {
         for c in 0..self.n {
             self.damped[cp[c]] += mu * self.diag_scale[c];
         }
-        let par = if parallel { Par::rayon(0) } else { Par::Seq };
         if let Some(ds) = &mut self.dense {
-            return ds.step(
-                &self.pattern,
-                &self.damped,
-                &self.grad,
-                par,
-                parallel,
-                delta,
-            );
+            return ds.step(&self.pattern, &self.damped, &self.grad, parallel, delta);
         }
-        if self.factor_scratch.as_ref().map(|s| s.0) != Some(parallel) {
-            let req = self.factor.refactor_scratch(par);
-            self.factor_scratch = Some((parallel, MemBuffer::new(req)));
-        }
-        let scratch = &mut self.factor_scratch.as_mut().expect("set above").1;
         let a = SparseColMatRef::new(self.pattern.as_ref(), &self.damped);
-        self.factor.refactor_ref(a, par, scratch)?;
+        self.factor
+            .refactor_cached(a, parallel, &mut self.factor_scratch)?;
         for (d, g) in delta.iter_mut().zip(&self.grad) {
             *d = -g;
         }
@@ -1188,7 +1176,7 @@ impl DenseSupports {
         }
         let values = vec![0.0; row_idx.len()];
         let pattern = SymbolicSparseColMat::new_checked(nk3, nk3, col_ptr, None, row_idx);
-        let factor = QuasiDefiniteFactor::symbolic_only(pattern.as_ref())?;
+        let factor = SpdFactor::symbolic_only_quasi_definite(pattern.as_ref())?;
         let solve_scratch = factor.make_scratch(1);
         Ok(Self {
             rows,
@@ -1241,7 +1229,6 @@ impl DenseSupports {
         pattern: &SymbolicSparseColMat<usize>,
         damped: &[f64],
         grad: &[f64],
-        par: Par,
         parallel: bool,
         delta: &mut [f64],
     ) -> Result<()> {
@@ -1272,13 +1259,9 @@ impl DenseSupports {
                 self.rhs[n + 3 * k + c] = if active { -self.offset[k][c] } else { 0.0 };
             }
         }
-        if self.factor_scratch.as_ref().map(|s| s.0) != Some(parallel) {
-            let req = self.factor.refactor_scratch(par);
-            self.factor_scratch = Some((parallel, MemBuffer::new(req)));
-        }
-        let scratch = &mut self.factor_scratch.as_mut().expect("set above").1;
         let a = SparseColMatRef::new(self.pattern.as_ref(), &self.values);
-        self.factor.refactor_ref(a, par, scratch)?;
+        self.factor
+            .refactor_cached(a, parallel, &mut self.factor_scratch)?;
         let m = self.rhs.len();
         self.factor.solve_in_place(
             MatMut::from_column_major_slice_mut(&mut self.rhs, m, 1),

@@ -1,4 +1,4 @@
-//! Sparse symmetric positive-definite solves with faer: symbolic factorization once per sparsity
+//! Sparse symmetric positive-definite (and quasi-definite) solves with faer: symbolic factorization once per sparsity
 //! pattern, numeric factorization per matrix, allocation-free solves with caller-owned scratch.
 
 use crate::error::{MeshError, Result};
@@ -13,13 +13,16 @@ use faer::sparse::linalg::cholesky::{
 use faer::sparse::{SparseColMat, SparseColMatRef, SymbolicSparseColMatRef, Triplet};
 use faer::{Conj, MatMut, Par, Side};
 
-/// Cholesky factor `A = L Lᵀ` of a sparse SPD matrix (AMD ordering, supernodal or simplicial as
-/// faer decides). Keeps the symbolic analysis so that [`SpdFactor::refactor`] only redoes the
+/// Cholesky factor `A = L Lᵀ` of a sparse SPD matrix, or `L D Lᵀ` of a quasi-definite one
+/// (AMD ordering, supernodal or simplicial as faer decides). Keeps the symbolic analysis so that [`SpdFactor::refactor`] only redoes the
 /// numeric step for a new matrix with the same pattern.
 pub struct SpdFactor {
     symbolic: SymbolicCholesky<usize>,
     values: Vec<f64>,
     n: usize,
+    /// `L D Lᵀ` of a quasi-definite matrix instead of `L Lᵀ` (see
+    /// [`SpdFactor::symbolic_only_quasi_definite`]).
+    ldlt: bool,
 }
 
 impl std::fmt::Debug for SpdFactor {
@@ -77,6 +80,7 @@ impl SpdFactor {
             values: vec![0.0; symbolic.len_val()],
             symbolic,
             n,
+            ldlt: false,
         };
         this.refactor(a)?;
         Ok(this)
@@ -116,13 +120,45 @@ impl SpdFactor {
             values: vec![0.0; symbolic.len_val()],
             symbolic,
             n,
+            ldlt: false,
         })
+    }
+
+    /// As [`SpdFactor::symbolic_only`], for symmetric *quasi-definite* matrices
+    /// `[A Bᵀ; B −C]` with A and C positive definite (regularised KKT systems): the numeric
+    /// step is then `L D Lᵀ` without pivoting, which exists for every symmetric ordering
+    /// (Vanderbei 1995).
+    pub fn symbolic_only_quasi_definite(a: SymbolicSparseColMatRef<'_, usize>) -> Result<Self> {
+        let mut this = Self::symbolic_only(a)?;
+        this.ldlt = true;
+        Ok(this)
     }
 
     /// Scratch needed by [`SpdFactor::refactor_ref`] with parallelism `par`.
     pub fn refactor_scratch(&self, par: Par) -> StackReq {
-        self.symbolic
-            .factorize_numeric_llt_scratch::<f64>(par, Default::default())
+        if self.ldlt {
+            self.symbolic
+                .factorize_numeric_ldlt_scratch::<f64>(par, Default::default())
+        } else {
+            self.symbolic
+                .factorize_numeric_llt_scratch::<f64>(par, Default::default())
+        }
+    }
+
+    /// [`SpdFactor::refactor_ref`] on the rayon pool (`parallel`) or sequentially, with the
+    /// scratch kept in `scratch` (allocated on first use and whenever `parallel` changes).
+    pub fn refactor_cached(
+        &mut self,
+        a: SparseColMatRef<'_, usize, f64>,
+        parallel: bool,
+        scratch: &mut Option<(bool, MemBuffer)>,
+    ) -> Result<()> {
+        let par = if parallel { Par::rayon(0) } else { Par::Seq };
+        if scratch.as_ref().map(|s| s.0) != Some(parallel) {
+            *scratch = Some((parallel, MemBuffer::new(self.refactor_scratch(par))));
+        }
+        let buf = &mut scratch.as_mut().expect("set above").1;
+        self.refactor_ref(a, par, buf)
     }
 
     /// Numeric refactorization of a borrowed matrix with the pattern analysed at creation, using
@@ -134,17 +170,33 @@ impl SpdFactor {
         par: Par,
         scratch: &mut MemBuffer,
     ) -> Result<()> {
-        self.symbolic
-            .factorize_numeric_llt(
-                &mut self.values,
-                a,
-                Side::Lower,
-                LltRegularization::default(),
-                par,
-                MemStack::new(scratch),
-                Default::default(),
-            )
-            .map_err(|e| MeshError::Numerical(format!("matrix is not positive definite: {e:?}")))?;
+        if self.ldlt {
+            self.symbolic
+                .factorize_numeric_ldlt(
+                    &mut self.values,
+                    a,
+                    Side::Lower,
+                    LdltRegularization::default(),
+                    par,
+                    MemStack::new(scratch),
+                    Default::default(),
+                )
+                .map_err(|e| MeshError::Numerical(format!("LDLᵀ factorization failed: {e:?}")))?;
+        } else {
+            self.symbolic
+                .factorize_numeric_llt(
+                    &mut self.values,
+                    a,
+                    Side::Lower,
+                    LltRegularization::default(),
+                    par,
+                    MemStack::new(scratch),
+                    Default::default(),
+                )
+                .map_err(|e| {
+                    MeshError::Numerical(format!("matrix is not positive definite: {e:?}"))
+                })?;
+        }
         Ok(())
     }
 
@@ -166,88 +218,22 @@ impl SpdFactor {
     /// Solves `A X = B` in place (`rhs` holds B on entry, X on exit), sequentially, using the
     /// caller's scratch (no allocation).
     pub fn solve_in_place(&self, rhs: MatMut<'_, f64>, scratch: &mut MemBuffer) {
-        LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
-            Conj::No,
-            rhs,
-            Par::Seq,
-            MemStack::new(scratch),
-        );
-    }
-}
-
-/// `L D Lᵀ` factor of a sparse symmetric *quasi-definite* matrix `[A Bᵀ; B −C]` with A and C
-/// positive definite (a regularised KKT system), which has such a factorization without
-/// pivoting for every symmetric ordering (Vanderbei 1995); AMD ordering chosen once per
-/// pattern, numeric refactorization per matrix.
-pub struct QuasiDefiniteFactor {
-    symbolic: SymbolicCholesky<usize>,
-    values: Vec<f64>,
-}
-
-impl std::fmt::Debug for QuasiDefiniteFactor {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "QuasiDefiniteFactor {{ n: {}, nnz(L): {} }}",
-            self.symbolic.nrows(),
-            self.values.len()
-        )
-    }
-}
-
-impl QuasiDefiniteFactor {
-    /// Symbolic analysis (AMD) of the lower-triangle pattern `a`; call
-    /// [`QuasiDefiniteFactor::refactor_ref`] before solving.
-    pub fn symbolic_only(a: SymbolicSparseColMatRef<'_, usize>) -> Result<Self> {
-        let symbolic =
-            factorize_symbolic_cholesky(a, Side::Lower, SymmetricOrdering::Amd, Default::default())
-                .map_err(|e| MeshError::Numerical(format!("symbolic LDLᵀ failed: {e:?}")))?;
-        Ok(Self {
-            values: vec![0.0; symbolic.len_val()],
-            symbolic,
-        })
-    }
-
-    /// Scratch needed by [`QuasiDefiniteFactor::refactor_ref`] with parallelism `par`.
-    pub fn refactor_scratch(&self, par: Par) -> StackReq {
-        self.symbolic
-            .factorize_numeric_ldlt_scratch::<f64>(par, Default::default())
-    }
-
-    /// Numeric `L D Lᵀ` of `a` (same pattern as analysed). Fails on a zero pivot.
-    pub fn refactor_ref(
-        &mut self,
-        a: SparseColMatRef<'_, usize, f64>,
-        par: Par,
-        scratch: &mut MemBuffer,
-    ) -> Result<()> {
-        self.symbolic
-            .factorize_numeric_ldlt(
-                &mut self.values,
-                a,
-                Side::Lower,
-                LdltRegularization::default(),
-                par,
-                MemStack::new(scratch),
-                Default::default(),
-            )
-            .map_err(|e| MeshError::Numerical(format!("LDLᵀ factorization failed: {e:?}")))?;
-        Ok(())
-    }
-
-    /// Allocates a scratch buffer for `ncols` right-hand sides.
-    pub fn make_scratch(&self, ncols: usize) -> MemBuffer {
-        MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(ncols, Par::Seq))
-    }
-
-    /// Solves `A X = B` in place, sequentially, with the caller's scratch.
-    pub fn solve_in_place(&self, rhs: MatMut<'_, f64>, scratch: &mut MemBuffer) {
-        LdltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
-            Conj::No,
-            rhs,
-            Par::Seq,
-            MemStack::new(scratch),
-        );
+        let stack = MemStack::new(scratch);
+        if self.ldlt {
+            LdltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
+                Conj::No,
+                rhs,
+                Par::Seq,
+                stack,
+            );
+        } else {
+            LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
+                Conj::No,
+                rhs,
+                Par::Seq,
+                stack,
+            );
+        }
     }
 }
 
