@@ -99,6 +99,10 @@ pub struct FitOptions {
     pub temporal_beta: f64,
     /// How the parameters are placed. Default [`Placement::Aligned`].
     pub placement: Placement,
+    /// τ_θ: weight of the motion constraint, `β_B ← (β_LS + τ_θ β_θ)/(1 + τ_θ)` after each
+    /// β-step, the minimiser of `|β_B − β_LS|² + τ_θ|β_B − β_θ|²` (see
+    /// [`Constraints::motion`]). Default 1.
+    pub motion_weight: f64,
 }
 
 impl Default for FitOptions {
@@ -121,6 +125,7 @@ impl Default for FitOptions {
             temporal_vertex_weight: 0.01,
             temporal_beta: 0.5,
             placement: Placement::Aligned,
+            motion_weight: 1.0,
         }
     }
 }
@@ -166,6 +171,11 @@ pub struct Constraints {
     pub points: Option<(Vec<V3>, Option<Vec<V3>>)>,
     /// Parameter edits: α (when non-empty) and the β blocks present here are held fixed.
     pub fixed: Option<Params>,
+    /// Motion data θ: local Euler angles (radians, `R = Rz·Ry·Rx`) by rig bone name, e.g. from
+    /// motion capture. Through the model's motion MLP it gives `β_θ = β_MLP(θ)` for the body
+    /// blocks, which starts β_B and pulls every β-step toward it with
+    /// [`FitOptions::motion_weight`] (PanoMan §5: motion data as a parameter constraint).
+    pub motion: Option<std::collections::BTreeMap<String, [f64; 3]>>,
     /// The previous frame of a sequence: warm start, temporal terms
     /// ([`FitOptions::temporal_vertex_weight`], [`FitOptions::temporal_beta`]), its shape α
     /// (kept for the whole sequence) and its placement ([`Placement::Propagated`]).
@@ -311,6 +321,8 @@ pub struct Fitter<'m> {
     torso_weights: Vec<f64>,
     /// The rest geometry of the last fit's α (a sequence keeps α).
     rest_cache: Option<(Vec<f64>, RestGeometry)>,
+    /// β_θ = (β_LB, β_AB) of the current fit's motion data, if any.
+    motion_beta: Option<(Vec<f64>, Vec<f64>)>,
 }
 
 impl<'m> Fitter<'m> {
@@ -353,6 +365,7 @@ impl<'m> Fitter<'m> {
             mean_edge,
             torso_weights,
             rest_cache: None,
+            motion_beta: None,
         })
     }
 
@@ -424,6 +437,18 @@ impl<'m> Fitter<'m> {
         }
         if let Some(f) = &c.fixed {
             f.validate(self.model).map_err(FitError::Invalid)?;
+        }
+        if let Some(m) = &c.motion {
+            if self.model.motion.is_none() {
+                return Err(FitError::Invalid(
+                    "motion data given, but the model has no motion MLP".into(),
+                ));
+            }
+            if let Some((b, _)) = m.iter().find(|(_, e)| !e.iter().all(|x| x.is_finite())) {
+                return Err(FitError::Invalid(format!(
+                    "motion data: bone '{b}' has a non-finite angle"
+                )));
+            }
         }
         if let Some(prev) = &c.previous {
             for (what, len) in [
@@ -568,6 +593,20 @@ impl<'m> Fitter<'m> {
                 self.ev.encode_beta(&rla, params, Some(&r))?;
             }
         }
+        if let Some((bl, ba)) = &self.motion_beta
+            && opts.motion_weight > 0.0
+        {
+            let tau = opts.motion_weight;
+            for (b, target) in [(0usize, bl), (3, ba)] {
+                if let Some(v) = params.beta.get_mut(&self.model.blocks[b].name)
+                    && v.len() == target.len()
+                {
+                    for (x, t) in v.iter_mut().zip(target) {
+                        *x = (*x + tau * t) / (1.0 + tau);
+                    }
+                }
+            }
+        }
         if let Some(prev) = &c.previous
             && opts.temporal_beta > 0.0
         {
@@ -624,11 +663,21 @@ impl<'m> Fitter<'m> {
             alpha,
             ..Default::default()
         };
+        // β_θ of the motion data (a constraint), else of the initializer's skeleton pose when
+        // `motion_init` (a start only).
+        self.motion_beta = c
+            .motion
+            .as_ref()
+            .and_then(|m| self.model.beta_from_theta(&|b: &str| m.get(b).copied()));
+        let start_theta = match (&self.motion_beta, &init.theta) {
+            (Some(mb), _) => Some(mb.clone()),
+            (None, Some(theta)) if opts.motion_init => {
+                self.model.beta_from_theta(&|b: &str| theta.get(b).copied())
+            }
+            _ => None,
+        };
         self.beta_step(&init.posed, &rg, &mut params, c, opts)?;
-        if opts.motion_init
-            && let Some(theta) = &init.theta
-            && let Some((bl, ba)) = self.model.beta_from_theta(&|b: &str| theta.get(b).copied())
-        {
+        if let Some((bl, ba)) = start_theta {
             let fixed = |name: &str| {
                 c.fixed
                     .as_ref()

@@ -32,9 +32,9 @@ use crate::rla::{
 };
 use crate::sparse::SpdFactor;
 use crate::topology::{NONE, Topology};
+use faer::MatMut;
 use faer::dyn_stack::MemBuffer;
 use faer::sparse::{SparseColMat, SparseColMatRef, SymbolicSparseColMat};
-use faer::MatMut;
 use rayon::prelude::*;
 use std::time::Instant;
 

@@ -175,6 +175,73 @@ fn sequence_follows_a_rigid_motion_and_propagates_the_placement() {
     );
 }
 
+/// Motion data θ constrains β_B through the motion MLP: with a large τ_θ the fitted body
+/// coefficients are β_MLP(θ) (to 1/(1+τ_θ) of their least-squares distance), without motion
+/// data they are not; non-finite angles are an error.
+#[test]
+fn motion_data_constrains_the_body_coefficients() {
+    let (_, data, model_path) = trained();
+    let (model, rig) = model_and_rig(model_path);
+    let ik = rig.ik_solver().unwrap();
+    let mut fitter = Fitter::new(&model).unwrap();
+    let (truth, _) = held_out(data, 1).remove(0);
+    let c = Constraints {
+        keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(&truth)),
+        ..Default::default()
+    };
+    let ikr = ik_fit(&ik, &c, &Default::default()).unwrap();
+    let init = panoman_fit::init_of(&ikr, &ik, rig.generator.bone_names());
+    let theta = init.theta.clone().unwrap();
+    let (bl, ba) = model
+        .beta_from_theta(&|b: &str| theta.get(b).copied())
+        .expect("the small model has a motion MLP");
+    let body = |p: &panoman_model::model::Params| {
+        let mut v = p.beta[&model.blocks[0].name].clone();
+        v.extend(&p.beta[&model.blocks[3].name]);
+        v
+    };
+    let mut target = bl.clone();
+    target.extend(&ba);
+    let dist = |v: &[f64]| {
+        v.iter()
+            .zip(&target)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let free = fitter.fit(&c, &init, &FitOptions::default()).unwrap();
+    let d_free = dist(&body(&free.params));
+    let with = Constraints {
+        motion: Some(theta.clone()),
+        ..c.clone()
+    };
+    let opts = FitOptions {
+        motion_weight: 1e6,
+        ..FitOptions::default()
+    };
+    let held = fitter.fit(&with, &init, &opts).unwrap();
+    let d_held = dist(&body(&held.params));
+    println!("|β_B − β_θ|: free {d_free:.3e}, τ_θ = 1e6 {d_held:.3e}");
+    assert!(d_free > 1e-3, "{d_free}");
+    assert!(d_held < 1e-5 * d_free.max(1.0), "{d_held} vs {d_free}");
+    // The fit still meets the keypoints (the shell's V is free).
+    let res = keypoint_residuals(&model, &c.keypoints, &held.vertices);
+    assert!(res["body"].mean_mm < 10.0, "{res:?}");
+    let mut bad = theta;
+    bad.insert("upperarm01.L".into(), [f64::NAN, 0.0, 0.0]);
+    let e = fitter
+        .fit(
+            &Constraints {
+                motion: Some(bad),
+                ..c
+            },
+            &init,
+            &opts,
+        )
+        .unwrap_err();
+    assert!(e.to_string().contains("non-finite"), "{e}");
+}
+
 #[test]
 fn point_cloud_with_missing_part_and_noise_helps() {
     let (_, data, model_path) = trained();
@@ -364,6 +431,35 @@ fn cli_fit_baseline_track_and_bad_input() {
     let rep: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(lbs.join("report.json")).unwrap()).unwrap();
     assert_eq!(rep["method"], "lbs");
+    // The baseline's rig parameters as motion data for PanoMan (β_B pulled to β_MLP(θ)).
+    let motion = dir.join("motion");
+    ok(panoman(&[
+        "fit",
+        "--model",
+        m,
+        "--keypoints",
+        k0s,
+        "--motion",
+        lbs.join("params.json").to_str().unwrap(),
+        "--out",
+        motion.to_str().unwrap(),
+    ]));
+    assert!(motion.join("params.json").exists());
+    let missing = dir.join("no-such-motion.json");
+    one_line_error(
+        &panoman(&[
+            "fit",
+            "--model",
+            m,
+            "--keypoints",
+            k0s,
+            "--motion",
+            missing.to_str().unwrap(),
+            "--out",
+            motion.to_str().unwrap(),
+        ]),
+        "no-such-motion.json",
+    );
 
     let track = dir.join("track");
     ok(panoman(&[

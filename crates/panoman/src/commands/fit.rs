@@ -63,6 +63,14 @@ pub struct FitArgs {
     /// Keypoint weight λ_K (dimensionless).
     #[arg(long, default_value_t = FitOptions::default().keypoint_weight)]
     pub keypoint_weight: f64,
+    /// Motion data θ: a generator parameter file (e.g. the params.json of `--baseline lbs`, or
+    /// a mocap pose in the same layout) whose bone angles give β_B through the model's motion
+    /// MLP, as a constraint on the body coefficients.
+    #[arg(long)]
+    pub motion: Option<PathBuf>,
+    /// Weight τ_θ of the motion data (β_B ← (β_LS + τ_θ β_θ)/(1 + τ_θ) after each β-step).
+    #[arg(long, default_value_t = FitOptions::default().motion_weight)]
+    pub motion_weight: f64,
     /// Asset directory (default: $PANOMAN_ASSETS or the user cache).
     #[arg(long)]
     pub assets: Option<PathBuf>,
@@ -197,6 +205,28 @@ pub fn run(a: FitArgs) -> Result<()> {
     }
     let assets = crate::util::open_assets(a.assets.as_deref())?;
     let rig = Rig::load(&assets, &model)?;
+    if let Some(p) = &a.motion {
+        if model.motion.is_none() {
+            return Err(anyhow!(
+                "{}: motion data given, but the model {} has no motion MLP",
+                p.display(),
+                a.model.display()
+            ));
+        }
+        let gp = rig.generator.read_params(p)?;
+        c.motion = Some(
+            rig.generator
+                .bone_names()
+                .iter()
+                .zip(&gp.pose.euler_deg)
+                .filter(|(_, e)| **e != [0.0; 3])
+                .map(|(n, e)| (n.clone(), e.map(f64::to_radians)))
+                .collect(),
+        );
+    }
+    if !(a.motion_weight >= 0.0 && a.motion_weight.is_finite()) {
+        return Err(anyhow!("--motion-weight must be a finite value ≥ 0"));
+    }
     let ik = rig.ik_solver()?;
     let mut fitter = Fitter::new(&model)?;
     fitter
@@ -212,6 +242,7 @@ pub fn run(a: FitArgs) -> Result<()> {
     std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
     let opts = FitOptions {
         keypoint_weight: a.keypoint_weight,
+        motion_weight: a.motion_weight,
         ..Default::default()
     };
     match a.baseline {
