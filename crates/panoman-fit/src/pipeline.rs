@@ -6,7 +6,9 @@
 //! points, re-matched per pass), so the shell fit starts from a mesh whose pose and body
 //! shape already follow the scan.
 use crate::error::{FitError, Result};
-use crate::fit::{Constraints, FitOptions, FitResult, Fitter, Init, Previous, warm_fit_options};
+use crate::fit::{
+    Constraints, FitOptions, FitResult, Fitter, Init, Placement, Previous, warm_fit_options,
+};
 use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences_on};
 use panoman_human::assets::AssetDir;
 use panoman_human::generator::{Generator, GeneratorOptions};
@@ -355,6 +357,11 @@ pub struct Sequence {
     /// Run every frame's IK cold (no warm start), e.g. for large motion between frames; the
     /// temporal terms stay. Default false.
     pub cold_ik: bool,
+    /// Every this many frames a warm frame is placed by [`Placement::Aligned`] (one `g`
+    /// solve) instead of propagating the previous placement, so that the propagated torso
+    /// motion cannot drift. Default 30; 0 never.
+    pub reanchor_every: usize,
+    frames: usize,
     state: Option<IkState>,
     previous: Option<Previous>,
 }
@@ -379,6 +386,8 @@ impl Sequence {
             warm,
             ik,
             cold_ik,
+            reanchor_every: 30,
+            frames: 0,
             state: None,
             previous: None,
         }
@@ -401,12 +410,17 @@ impl Sequence {
         } else {
             self.state.as_ref()
         };
-        let opts = if self.previous.is_some() {
-            &self.warm
-        } else {
-            &self.cold
+        let reanchor = self.reanchor_every > 0 && self.frames.is_multiple_of(self.reanchor_every);
+        let opts = match (&self.previous, reanchor) {
+            (None, _) => self.cold.clone(),
+            (Some(_), false) => self.warm.clone(),
+            (Some(_), true) => FitOptions {
+                placement: Placement::Aligned,
+                ..self.warm.clone()
+            },
         };
-        let (r, fit) = fit_frame(rig, ik, fitter, &c, &self.ik, opts, warm)?;
+        let (r, fit) = fit_frame(rig, ik, fitter, &c, &self.ik, &opts, warm)?;
+        self.frames += 1;
         self.state = Some(r.state.clone());
         self.previous = Some(Previous {
             vertices: fit.vertices.clone(),

@@ -84,8 +84,8 @@ pub struct GStats {
     pub frame_energy_start: f64,
     /// Final frame energy.
     pub frame_energy: f64,
-    /// Whether the frame solve met its tolerance (false: it stopped at the iteration cap with
-    /// the best iterate).
+    /// Whether the frame solve met its tolerance (false: it stopped at the iteration cap or
+    /// when the line search found no decrease, with the best iterate).
     pub frame_converged: bool,
     /// Target lengths raised to the floor `ℓ_r·MIN_RELATIVE_LENGTH` (RL < −1 + floor), by
     /// [`Reconstructor::reconstruct_rla`].
@@ -698,8 +698,10 @@ impl Reconstructor {
                 t *= 0.5;
             }
             if !accepted {
+                // No decrease along the Gauss–Newton direction even at 1/128 of the step:
+                // stop with the best iterate; `frame_converged` stays false.
                 ws.frames.copy_from_slice(&ws.frames_prev);
-                stats.frame_converged = true;
+                break;
             }
             if stats.frame_converged {
                 break;

@@ -358,7 +358,8 @@ pub struct ShellReport {
     pub length_rms: f64,
     /// Final rms over interior edges of `wrap(φ_e − φ*_e)` (radians, unweighted).
     pub angle_rms: f64,
-    /// Bend rows left out of the last Jacobian as near-degenerate (§6 item 4).
+    /// Bend rows left out of the last Jacobian as near-degenerate (§6 item 4); the last
+    /// linearisation, which precedes the final step when that step is not re-linearised.
     pub skipped_bend_rows: usize,
     /// Final damping μ.
     pub mu: f64,
@@ -398,7 +399,9 @@ pub struct ShellSolver {
     /// the pattern, for the slot lookup of point constraints.
     pairs: Vec<(u32, u32)>,
     nb_off: Vec<usize>,
-    factor: SpdFactor,
+    /// Symbolic + numeric factorization of JᵀJ + μD (`None` with dense supports, whose
+    /// quasi-definite system is factored instead).
+    factor: Option<SpdFactor>,
     factor_scratch: Option<(bool, MemBuffer)>,
     solve_scratch: MemBuffer,
     // Work buffers.
@@ -432,8 +435,10 @@ pub struct ShellSolver {
 struct DenseSupports {
     /// Per support: merged `(vertex, b)` pairs, sorted by vertex.
     rows: Vec<Vec<(u32, f64)>>,
-    /// The given vertex sequence of each support → its index.
-    index: std::collections::HashMap<Vec<u32>, usize>,
+    /// The rows of each support as given (a constraint matches when its rows are equal).
+    given: Vec<Vec<(u32, f64)>>,
+    /// (first vertex, length) of the given rows → candidate supports.
+    index: std::collections::HashMap<(u32, usize), Vec<usize>>,
     /// Pattern of the quasi-definite matrix (lower CSC, size 3|V| + 3K).
     pattern: SymbolicSparseColMat<usize>,
     values: Vec<f64>,
@@ -492,14 +497,17 @@ impl ShellSolver {
         extra: &[(u32, u32)],
         dense: &[Vec<(u32, f64)>],
     ) -> Result<Self> {
-        let mut this = Self::build(topo, extra)?;
+        let mut this = Self::build(topo, extra, dense.is_empty())?;
         if !dense.is_empty() {
             this.dense = Some(DenseSupports::new(&this, dense)?);
         }
         Ok(this)
     }
 
-    fn build(topo: &Topology, extra: &[(u32, u32)]) -> Result<Self> {
+    /// The pattern, scatter map and (with `analyse`) the symbolic factorization of JᵀJ; with
+    /// dense supports only the quasi-definite system is factored, so JᵀJ's own analysis is
+    /// skipped.
+    fn build(topo: &Topology, extra: &[(u32, u32)], analyse: bool) -> Result<Self> {
         let nv = topo.n_vertices;
         let ne = topo.n_edges();
         // Block pairs (lo, hi), lo < hi.
@@ -595,8 +603,13 @@ impl ShellSolver {
             })
             .collect();
         let pattern = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
-        let factor = SpdFactor::symbolic_only(pattern.as_ref())?;
-        let solve_scratch = factor.make_scratch(1);
+        let (factor, solve_scratch) = if analyse {
+            let f = SpdFactor::symbolic_only(pattern.as_ref())?;
+            let s = f.make_scratch(1);
+            (Some(f), s)
+        } else {
+            (None, MemBuffer::new(faer::dyn_stack::StackReq::EMPTY))
+        };
         Ok(Self {
             topo: topo.clone(),
             n,
@@ -839,6 +852,7 @@ impl ShellSolver {
 
     /// `g = Jᵀr` from the last [`ShellSolver::linearize`] (`∇E = 2g`), length 3|V|, vertex-major.
     pub fn gradient(&self) -> &[f64] {
+        assert!(self.linearized, "no current linearisation");
         &self.grad
     }
 
@@ -975,14 +989,17 @@ impl ShellSolver {
         if let Some(ds) = &mut self.dense {
             return ds.step(&self.pattern, &self.damped, &self.grad, parallel, delta);
         }
+        let factor = self
+            .factor
+            .as_mut()
+            .expect("analysed when there are no dense supports");
         let a = SparseColMatRef::new(self.pattern.as_ref(), &self.damped);
-        self.factor
-            .refactor_cached(a, parallel, &mut self.factor_scratch)?;
+        factor.refactor_cached(a, parallel, &mut self.factor_scratch)?;
         for (d, g) in delta.iter_mut().zip(&self.grad) {
             *d = -g;
         }
         let n = self.n;
-        self.factor.solve_in_place(
+        factor.solve_in_place(
             MatMut::from_column_major_slice_mut(delta, n, 1),
             &mut self.solve_scratch,
         );
@@ -1117,7 +1134,8 @@ impl DenseSupports {
     fn new(solver: &ShellSolver, given: &[Vec<(u32, f64)>]) -> Result<Self> {
         let nv = solver.topo.n_vertices;
         let n = solver.n;
-        let mut index = std::collections::HashMap::new();
+        let mut index: std::collections::HashMap<(u32, usize), Vec<usize>> =
+            std::collections::HashMap::new();
         let mut rows = Vec::with_capacity(given.len());
         for (k, g) in given.iter().enumerate() {
             if g.is_empty() || g.iter().any(|&(v, b)| v as usize >= nv || !b.is_finite()) {
@@ -1125,7 +1143,7 @@ impl DenseSupports {
                     "dense support {k}: empty, out-of-range vertex or non-finite coefficient"
                 )));
             }
-            index.insert(g.iter().map(|r| r.0).collect::<Vec<u32>>(), k);
+            index.entry((g[0].0, g.len())).or_default().push(k);
             let mut m: Vec<(u32, f64)> = g.clone();
             m.sort_by_key(|r| r.0);
             let mut merged: Vec<(u32, f64)> = Vec::with_capacity(m.len());
@@ -1181,6 +1199,7 @@ impl DenseSupports {
         Ok(Self {
             rows,
             index,
+            given: given.to_vec(),
             pattern,
             values,
             coupling_slots,
@@ -1194,31 +1213,17 @@ impl DenseSupports {
         })
     }
 
-    /// The support whose registered rows equal `pc.rows` (point-to-point only).
+    /// The support whose registered rows equal `pc.rows` (same vertices in the same order,
+    /// same coefficients; point-to-point only). No allocation.
     fn lookup(&self, pc: &PointConstraint) -> Option<usize> {
-        if pc.normal.is_some() {
+        if pc.normal.is_some() || pc.rows.is_empty() {
             return None;
         }
-        let key: Vec<u32> = pc.rows.iter().map(|r| r.0).collect();
-        let &k = self.index.get(&key)?;
-        // Same vertices; the coefficients must agree too (merged rows compared by sum).
-        let mut m: Vec<(u32, f64)> = pc.rows.clone();
-        m.sort_by_key(|r| r.0);
-        let mut it = self.rows[k].iter();
-        let mut i = 0;
-        while i < m.len() {
-            let (v, mut b) = m[i];
-            i += 1;
-            while i < m.len() && m[i].0 == v {
-                b += m[i].1;
-                i += 1;
-            }
-            match it.next() {
-                Some(&(rv, rb)) if rv == v && rb == b => {}
-                _ => return None,
-            }
-        }
-        Some(k)
+        self.index
+            .get(&(pc.rows[0].0, pc.rows.len()))?
+            .iter()
+            .copied()
+            .find(|&k| self.given[k] == pc.rows)
     }
 
     /// Assembles `[JᵀJ + μD, Γᵀ; Γ, −W⁻¹]` from the damped values, factors it and solves for

@@ -89,22 +89,8 @@ impl SpdFactor {
     /// Numeric refactorization of a matrix with the same pattern as the one given at creation.
     pub fn refactor(&mut self, a: &SparseColMat<usize, f64>) -> Result<()> {
         let par = Par::Seq;
-        let mut mem = MemBuffer::new(
-            self.symbolic
-                .factorize_numeric_llt_scratch::<f64>(par, Default::default()),
-        );
-        self.symbolic
-            .factorize_numeric_llt(
-                &mut self.values,
-                a.as_ref(),
-                Side::Lower,
-                LltRegularization::default(),
-                par,
-                MemStack::new(&mut mem),
-                Default::default(),
-            )
-            .map_err(|e| MeshError::Numerical(format!("matrix is not positive definite: {e:?}")))?;
-        Ok(())
+        let mut mem = MemBuffer::new(self.refactor_scratch(par));
+        self.refactor_ref(a.as_ref(), par, &mut mem)
     }
 
     /// Symbolic analysis (AMD ordering, faer's supernodal/simplicial choice) of the lower

@@ -175,6 +175,33 @@ fn same_data_and_seed_give_a_byte_identical_model() {
         other.to_str().unwrap(),
     ]));
     assert!(std::fs::read(&other).unwrap() != a);
+    // --shape-components overrides the preset's 6 (and 0 is refused).
+    let shape = model_path.with_file_name("M4.safetensors");
+    ok(panoman(&[
+        "train",
+        "--data",
+        data.to_str().unwrap(),
+        "--preset",
+        "small",
+        "--shape-components",
+        "3",
+        "--out",
+        shape.to_str().unwrap(),
+    ]));
+    let m = panoman_model::model::PanoManModel::load(&shape).unwrap();
+    assert_eq!(m.shape.n_components(), 3);
+    one_line_error(
+        &panoman(&[
+            "train",
+            "--data",
+            data.to_str().unwrap(),
+            "--shape-components",
+            "0",
+            "--out",
+            shape.to_str().unwrap(),
+        ]),
+        "--shape-components",
+    );
 }
 
 #[test]

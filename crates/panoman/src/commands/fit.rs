@@ -206,6 +206,11 @@ pub fn run(a: FitArgs) -> Result<()> {
     let assets = crate::util::open_assets(a.assets.as_deref())?;
     let rig = Rig::load(&assets, &model)?;
     if let Some(p) = &a.motion {
+        if a.baseline.is_some() {
+            return Err(anyhow!(
+                "--motion constrains PanoMan's β_B; it does not apply to --baseline lbs"
+            ));
+        }
         if model.motion.is_none() {
             return Err(anyhow!(
                 "{}: motion data given, but the model {} has no motion MLP",

@@ -33,6 +33,10 @@ pub struct TrainArgs {
     /// Override the components per part as `BODY,FACE,HANDS` (e.g. `400,100,50`).
     #[arg(long)]
     pub components: Option<String>,
+    /// Override the number of shape (α) components (preset: 10 default, 6 small); at most the
+    /// number of training identities − 1.
+    #[arg(long)]
+    pub shape_components: Option<usize>,
     /// Asset directory (default: $PANOMAN_ASSETS, else the user cache directory).
     #[arg(long)]
     pub assets: Option<PathBuf>,
@@ -55,6 +59,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
             bail!("--components: expected three positive counts BODY,FACE,HANDS, got '{c}'");
         }
         cfg.components = [v[0], v[1], v[2]];
+    }
+    if let Some(n) = a.shape_components {
+        if n == 0 {
+            bail!("--shape-components: expected a positive count");
+        }
+        cfg.n_shape = n;
     }
     let ds = Dataset::open(&a.data)?;
     let assets = crate::util::open_assets(a.assets.as_deref())?;
