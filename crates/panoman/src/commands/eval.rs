@@ -632,6 +632,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let twist_v = summary["twist"].clone();
     let mut at180 = serde_json::Map::new();
     let mut forearm_min = f64::INFINITY;
+    let mut forearm_own_min = f64::INFINITY;
     if let Some(limbs) = twist_v["limbs"].as_array() {
         for l in limbs {
             let rows = l["rows"].as_array().cloned().unwrap_or_default();
@@ -650,6 +651,11 @@ pub fn run(a: EvalArgs) -> Result<()> {
                     if (120.0..=170.0).contains(&ang) {
                         forearm_min =
                             forearm_min.min(r["panoman_min_radius_ratio"].as_f64().unwrap_or(0.0));
+                        forearm_own_min = forearm_own_min.min(
+                            r["panoman_own_rest_min_radius_ratio"]
+                                .as_f64()
+                                .unwrap_or(0.0),
+                        );
                     }
                 }
             }
@@ -663,6 +669,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
             "fit_noise_5mm_mean_mm": {"panoman": mean_of(&pm_noisy).all_mean, "lbs": mean_of(&lbs_noisy).all_mean},
             "clip_mean_mm": {"panoman": mean_of(&pm_clip).all_mean, "lbs": mean_of(&lbs_clip).all_mean},
             "forearm_twist_120_170_min_radius_ratio_panoman": if forearm_min.is_finite() { json!(forearm_min) } else { json!(null) },
+            "forearm_twist_120_170_min_radius_ratio_panoman_own_rest": if forearm_own_min.is_finite() { json!(forearm_own_min) } else { json!(null) },
             "twist_largest_angle": at180,
             "cold_fit_median_s": stages_v["total"]["median_s"],
             "warm_frame_median_s": wmed,
@@ -810,6 +817,17 @@ fn twist_study(
                     / r.values().map(|g| g.n).sum::<usize>().max(1) as f64;
                 all
             };
+            // Over PanoMan's own rest shape B_S(α) (the 10-component shape PCA makes the limb a
+            // few % thinner than the person's true rest even untwisted).
+            let own_rest_ratio = {
+                let own = model.rest_shape(&fit.params.alpha);
+                let ko = model.keypoints.evaluate(&own);
+                let k = model.keypoints.evaluate(&fit.vertices);
+                seg.radius_ratios(&own, (ko[ra], ko[rb]), &fit.vertices, (k[ra], k[rb]))
+                    .into_iter()
+                    .filter(|r| r.is_finite())
+                    .fold(f64::INFINITY, f64::min)
+            };
             rows.push(json!({
                 "lbs_fit_keypoint_mean_mm": kres(&ikr.posed),
                 "panoman_keypoint_mean_mm": kres(&fit.vertices),
@@ -817,6 +835,7 @@ fn twist_study(
                 "rig_min_radius_ratio": min_ratio(&truth),
                 "lbs_fit_min_radius_ratio": min_ratio(&ikr.posed),
                 "panoman_min_radius_ratio": min_ratio(&fit.vertices),
+                "panoman_own_rest_min_radius_ratio": own_rest_ratio,
                 "rig_volume_change_pct": vol(&truth),
                 "lbs_fit_volume_change_pct": vol(&ikr.posed),
                 "panoman_volume_change_pct": vol(&fit.vertices),
