@@ -25,7 +25,7 @@
 //! damping is reset whenever correspondences change, since E is not monotone across
 //! re-matching).
 use crate::error::{FitError, Result};
-use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences};
+use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences_on};
 use panoman_human::keypoints::{KeypointGroup, KeypointsFile};
 use panoman_mesh::align::{Rigid, axis_angle, rigid_align};
 use panoman_mesh::geom::{V3, add, dot, matmul, matvec, norm, scale, sub};
@@ -755,8 +755,8 @@ impl<'m> Fitter<'m> {
                 self.beta_step(&x, &rg, &mut params, c, opts)?;
                 let mut targets = self.guidance(&params, &rg, &x, opts)?;
                 self.constraint_targets(&mut targets, &all_kp, c, &init.posed, opts);
-                let (cons, stats) = correspondences(
-                    self.ev.topology(),
+                let (cons, stats) = correspondences_on(
+                    &self.ev.topology().faces,
                     &self.vf,
                     &x,
                     pts,

@@ -44,22 +44,9 @@ impl VertexFaces {
 
     /// Incidence lists of the triangles `tris` over `n_vertices` vertices.
     pub fn from_faces(n_vertices: usize, tris: &[[u32; 3]]) -> Self {
-        let mut offsets = vec![0u32; n_vertices + 1];
-        for f in tris {
-            for &v in f {
-                offsets[v as usize + 1] += 1;
-            }
-        }
-        for v in 0..n_vertices {
-            offsets[v + 1] += offsets[v];
-        }
-        let mut fill = offsets.clone();
-        let mut faces = vec![0u32; tris.len() * 3];
-        for (fi, f) in tris.iter().enumerate() {
-            for &v in f {
-                faces[fill[v as usize] as usize] = fi as u32;
-                fill[v as usize] += 1;
-            }
+        let (offsets, mut faces) = panoman_mesh::topology::vertex_corners(n_vertices, tris);
+        for c in faces.iter_mut() {
+            *c /= 3;
         }
         VertexFaces { offsets, faces }
     }
@@ -84,20 +71,8 @@ pub struct MatchStats {
 }
 
 /// Point-to-plane constraints of `points` (with optional unit `normals`) against the surface
-/// `x` of `topo`, each with weight `weight` (units 1/length²).
-pub fn correspondences(
-    topo: &Topology,
-    vf: &VertexFaces,
-    x: &[V3],
-    points: &[V3],
-    normals: Option<&[V3]>,
-    weight: f64,
-    opts: &IcpOptions,
-) -> (Vec<PointConstraint>, MatchStats) {
-    correspondences_on(&topo.faces, vf, x, points, normals, weight, opts)
-}
-
-/// [`correspondences`] against the triangles `faces` (with their incidence lists `vf`).
+/// `x` of the triangles `faces` (with their incidence lists `vf`), each with weight `weight`
+/// (units 1/length²).
 pub fn correspondences_on(
     faces: &[[u32; 3]],
     vf: &VertexFaces,

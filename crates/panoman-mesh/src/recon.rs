@@ -22,8 +22,7 @@
 //!    3×3 matrices (`K Y = 0` with the gauge pinned), whose minimiser on non-integrable data
 //!    (model RL/RA) shrinks every frame toward 0 away from the gauge so that the projection
 //!    back to SO(3) is arbitrary, this minimises the frame energy over rotations themselves.
-//! 4. (no projection step: the iterates are rotations.)
-//! 5. **Poisson vertex solve.** `min Σ_t Σ_{(a→b)∈∂t} ‖x_b − x_a − R_t (q_b − q_a)‖²` with one
+//! 4. **Poisson vertex solve.** `min Σ_t Σ_{(a→b)∈∂t} ‖x_b − x_a − R_t (q_b − q_a)‖²` with one
 //!    gauge vertex fixed per component: its normal matrix is the uniform graph Laplacian
 //!    (weight 2 per interior edge, 1 per boundary edge), factored once per topology.
 //!

@@ -161,27 +161,11 @@ impl Topology {
 
         // Vertex manifoldness and unreferenced vertices: the faces around each vertex must form
         // a single fan. Count incident faces, then walk the fan from one face.
-        let mut inc_off = vec![0u32; n_vertices + 1];
-        for t in faces {
-            for &v in t {
-                inc_off[v as usize + 1] += 1;
-            }
-        }
-        for v in 0..n_vertices {
-            inc_off[v + 1] += inc_off[v];
-        }
+        let (inc_off, inc) = vertex_corners(n_vertices, faces);
         if let Some(v) = (0..n_vertices).find(|&v| inc_off[v] == inc_off[v + 1]) {
             return Err(MeshError::Topology(format!(
                 "vertex {v} is not used by any face"
             )));
-        }
-        let mut inc = vec![0u32; inc_off[n_vertices] as usize];
-        let mut fill = inc_off.clone();
-        for (f, t) in faces.iter().enumerate() {
-            for (s, &v) in t.iter().enumerate() {
-                inc[fill[v as usize] as usize] = f as u32 * 3 + s as u32;
-                fill[v as usize] += 1;
-            }
         }
         let other_face = |e: u32, f: u32| -> u32 {
             let [fl, fr] = edge_faces[e as usize];
@@ -432,6 +416,30 @@ impl Topology {
             }
         )
     }
+}
+
+/// The corners around each vertex as CSR lists: `corners[offsets[v]..offsets[v + 1]]` holds
+/// `3 f + s` for every face `f` whose slot `s` is `v`, in face order (indices must be
+/// `< n_vertices`).
+pub fn vertex_corners(n_vertices: usize, faces: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let mut offsets = vec![0u32; n_vertices + 1];
+    for t in faces {
+        for &v in t {
+            offsets[v as usize + 1] += 1;
+        }
+    }
+    for v in 0..n_vertices {
+        offsets[v + 1] += offsets[v];
+    }
+    let mut corners = vec![0u32; offsets[n_vertices] as usize];
+    let mut fill = offsets.clone();
+    for (f, t) in faces.iter().enumerate() {
+        for (s, &v) in t.iter().enumerate() {
+            corners[fill[v as usize] as usize] = f as u32 * 3 + s as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    (offsets, corners)
 }
 
 /// FNV-1a hash of (#V, faces) as 16 hex digits; see [`Topology::hash_hex`].

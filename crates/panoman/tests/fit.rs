@@ -48,6 +48,24 @@ fn held_out(data: &Path, n: usize) -> Vec<(Vec<V3>, Vec<V3>)> {
         .collect()
 }
 
+/// One cold fit with the default IK and fit options.
+fn cold_fit(
+    rig: &Rig,
+    ik: &panoman_human::ik::IkSolver<'_>,
+    fitter: &mut Fitter<'_>,
+    c: &Constraints,
+) -> panoman_fit::Result<(panoman_human::ik::IkResult, panoman_fit::FitResult)> {
+    fit_frame(
+        rig,
+        ik,
+        fitter,
+        c,
+        &Default::default(),
+        &FitOptions::default(),
+        None,
+    )
+}
+
 fn mean_error(a: &[V3], b: &[V3]) -> f64 {
     a.iter().zip(b).map(|(p, q)| norm(sub(*p, *q))).sum::<f64>() / a.len() as f64
 }
@@ -66,16 +84,7 @@ fn held_out_people_from_exact_keypoints() {
             keypoints: kp.clone(),
             ..Default::default()
         };
-        let (ikr, fit) = fit_frame(
-            &rig,
-            &ik,
-            &mut fitter,
-            &c,
-            &Default::default(),
-            &FitOptions::default(),
-            None,
-        )
-        .unwrap();
+        let (ikr, fit) = cold_fit(&rig, &ik, &mut fitter, &c).unwrap();
         let (ep, el) = (
             mean_error(&fit.vertices, truth),
             mean_error(&ikr.posed, truth),
@@ -330,16 +339,8 @@ fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
         keypoints: kp,
         ..Default::default()
     };
-    let (_, fit) = fit_frame(
-        &rig,
-        &ik,
-        &mut fitter,
-        &c,
-        &Default::default(),
-        &FitOptions::default(),
-        None,
-    )
-    .expect("an unreachable target is not an error");
+    let (_, fit) =
+        cold_fit(&rig, &ik, &mut fitter, &c).expect("an unreachable target is not an error");
     assert!(fit.vertices.iter().flatten().all(|x| x.is_finite()));
     assert!(fit.report.keypoint_residuals["body"].max_mm > 100.0);
 

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 mod common;
-use common::{ok, one_line_error, panoman, small_model};
+use common::{ok, one_line_error, panoman, small_model, train_small};
 
 /// A small dataset and a model trained on it, shared by the tests of this file.
 fn trained() -> &'static (PathBuf, PathBuf) {
@@ -149,57 +149,21 @@ fn small_model_trains_poses_and_encodes() {
 fn same_data_and_seed_give_a_byte_identical_model() {
     let (data, model_path) = trained();
     let again = model_path.with_file_name("M2.safetensors");
-    ok(panoman(&[
-        "train",
-        "--data",
-        data.to_str().unwrap(),
-        "--preset",
-        "small",
-        "--out",
-        again.to_str().unwrap(),
-    ]));
+    ok(train_small(data, &again, &[]));
     let a = std::fs::read(model_path).unwrap();
     let b = std::fs::read(&again).unwrap();
     assert!(a == b, "models differ ({} vs {} bytes)", a.len(), b.len());
     // A different seed changes the model.
     let other = model_path.with_file_name("M3.safetensors");
-    ok(panoman(&[
-        "train",
-        "--data",
-        data.to_str().unwrap(),
-        "--preset",
-        "small",
-        "--seed",
-        "9",
-        "--out",
-        other.to_str().unwrap(),
-    ]));
+    ok(train_small(data, &other, &["--seed", "9"]));
     assert!(std::fs::read(&other).unwrap() != a);
     // --shape-components overrides the preset's 6 (and 0 is refused).
     let shape = model_path.with_file_name("M4.safetensors");
-    ok(panoman(&[
-        "train",
-        "--data",
-        data.to_str().unwrap(),
-        "--preset",
-        "small",
-        "--shape-components",
-        "3",
-        "--out",
-        shape.to_str().unwrap(),
-    ]));
+    ok(train_small(data, &shape, &["--shape-components", "3"]));
     let m = panoman_model::model::PanoManModel::load(&shape).unwrap();
     assert_eq!(m.shape.n_components(), 3);
     one_line_error(
-        &panoman(&[
-            "train",
-            "--data",
-            data.to_str().unwrap(),
-            "--shape-components",
-            "0",
-            "--out",
-            shape.to_str().unwrap(),
-        ]),
+        &train_small(data, &shape, &["--shape-components", "0"]),
         "--shape-components",
     );
 }

@@ -2,7 +2,7 @@
 //! one-line error, and synthesize + train a small model once per test binary.
 #![allow(dead_code)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// Runs the `panoman` binary with `args`.
@@ -57,14 +57,20 @@ pub fn small_model(tag: &str, seed: u64) -> (PathBuf, PathBuf, PathBuf) {
         data.to_str().unwrap(),
     ]));
     let model = d.join("M.safetensors");
-    ok(panoman(&[
+    ok(train_small(&data, &model, &[]));
+    (d, data, model)
+}
+
+/// `panoman train --data DATA --preset small [EXTRA…] --out OUT`.
+pub fn train_small(data: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
         "train",
         "--data",
         data.to_str().unwrap(),
         "--preset",
         "small",
-        "--out",
-        model.to_str().unwrap(),
-    ]));
-    (d, data, model)
+    ];
+    args.extend_from_slice(extra);
+    args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+    panoman(&args)
 }
