@@ -14,7 +14,7 @@ use panoman_mesh::Topology;
 fn oracle(name: &str) -> PathBuf {
     let fixtures = match std::env::var_os("PANOMAN_FIXTURES") {
         Some(p) if !p.is_empty() => PathBuf::from(p),
-        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures"),
+        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures"),
     };
     fixtures.join("anny-oracle").join(name)
 }

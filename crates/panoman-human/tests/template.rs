@@ -15,7 +15,7 @@ use panoman_mesh::topology::Topology;
 fn fixtures() -> PathBuf {
     match std::env::var_os("PANOMAN_FIXTURES") {
         Some(p) if !p.is_empty() => PathBuf::from(p),
-        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures"),
+        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures"),
     }
 }
 

@@ -19,7 +19,7 @@ const CASES: [&str; 3] = ["default", "seed000", "seed001"];
 fn fixtures() -> PathBuf {
     std::env::var_os("PANOMAN_FIXTURES")
         .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures"))
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures"))
 }
 
 fn tmpdir(tag: &str) -> PathBuf {
