@@ -51,8 +51,8 @@ fn held_out(data: &Path, n: usize) -> Vec<(Vec<V3>, Vec<V3>)> {
 /// One cold fit with the default IK and fit options.
 fn cold_fit(
     rig: &Rig,
-    ik: &panoman_human::ik::IkSolver<'_>,
-    fitter: &mut Fitter<'_>,
+    ik: &panoman_human::ik::IkSolver,
+    fitter: &mut Fitter,
     c: &Constraints,
 ) -> panoman_fit::Result<(panoman_human::ik::IkResult, panoman_fit::FitResult)> {
     fit_frame(
@@ -75,7 +75,7 @@ fn held_out_people_from_exact_keypoints() {
     let (_, data, model_path) = trained();
     let (model, rig) = model_and_rig(model_path);
     let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(&model).unwrap();
+    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
     let cases = held_out(data, 3);
     let (mut e_pm, mut e_lbs) = (0.0, 0.0);
     for (truth, _) in &cases {
@@ -128,7 +128,7 @@ fn sequence_follows_a_rigid_motion_and_propagates_the_placement() {
     let (_, data, model_path) = trained();
     let (model, rig) = model_and_rig(model_path);
     let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(&model).unwrap();
+    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
     let (truth, _) = held_out(data, 1).remove(0);
     let r = axis_angle([0.2, 0.1, 1.0], 0.3);
     let t = [0.05, -0.02, 0.01];
@@ -192,7 +192,7 @@ fn motion_data_constrains_the_body_coefficients() {
     let (_, data, model_path) = trained();
     let (model, rig) = model_and_rig(model_path);
     let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(&model).unwrap();
+    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
     let (truth, _) = held_out(data, 1).remove(0);
     let c = Constraints {
         keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(&truth)),
@@ -256,7 +256,7 @@ fn point_cloud_with_missing_part_and_noise_helps() {
     let (_, data, model_path) = trained();
     let (model, rig) = model_and_rig(model_path);
     let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(&model).unwrap();
+    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
     let (truth, _) = &held_out(data, 1)[0];
     // A scan: every vertex of the front-facing 70 % (by height order of a plane cut),
     // displaced by 2 mm Gaussian noise (deterministic generator).
@@ -329,7 +329,7 @@ fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
     let (_, data, model_path) = trained();
     let (model, rig) = model_and_rig(model_path);
     let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(&model).unwrap();
+    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
     let (truth, rest) = &held_out(data, 1)[0];
     let mut kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
     // The left wrist 1 m away from the elbow: unreachable.

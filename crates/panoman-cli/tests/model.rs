@@ -60,7 +60,7 @@ fn small_model_trains_poses_and_encodes() {
     assert!(model_path.with_extension("fig7.csv").exists());
 
     // Posing: zero parameters give the mean shape with the mean motion, finite and closed.
-    let mut ev = Evaluator::new(&model).unwrap();
+    let mut ev = Evaluator::new(std::sync::Arc::new(model.clone())).unwrap();
     let zero = ev.pose(&Params::default(), true).unwrap();
     assert!(zero.iter().flatten().all(|c| c.is_finite()));
     assert_eq!(

@@ -118,7 +118,7 @@ fn main() {
     let assets = panoman_human::assets::ensure_default().unwrap();
     let rig = Rig::load(&assets, &model).unwrap();
     let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(&model).unwrap();
+    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
     let to_v3 = |x: Vec<[f32; 3]>| -> Vec<V3> {
         x.iter()
             .map(|c| [c[0] as f64, c[1] as f64, c[2] as f64])

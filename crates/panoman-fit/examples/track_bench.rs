@@ -33,7 +33,7 @@ fn main() {
     let assets = panoman_human::assets::ensure_default().expect("assets");
     let rig = Rig::load(&assets, &model).expect("rig");
     let ik = rig.ik_solver().expect("IK");
-    let mut fitter = Fitter::new(&model).expect("fitter");
+    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).expect("fitter");
     let clip = Clip::generate(&ClipConfig {
         seed,
         n_frames,

@@ -35,6 +35,7 @@ use panoman_mesh::shell::{
 use panoman_mesh::{RestGeometry, Rla, Topology};
 use panoman_model::model::{Evaluator, PanoManModel, Params};
 use serde::Serialize;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Names of the torso keypoints used by the first stage.
@@ -311,9 +312,9 @@ pub struct FitResult {
 /// Per-model fitting state: the evaluator (g, encoder), the shell solver whose pattern
 /// includes the keypoint regressors' couplings, and the ICP incidence lists. Build once, fit
 /// many frames.
-pub struct Fitter<'m> {
-    model: &'m PanoManModel,
-    ev: Evaluator<'m>,
+pub struct Fitter {
+    model: Arc<PanoManModel>,
+    ev: Evaluator,
     solver: ShellSolver,
     vf: VertexFaces,
     mean_edge: f64,
@@ -325,10 +326,18 @@ pub struct Fitter<'m> {
     motion_beta: Option<(Vec<f64>, Vec<f64>)>,
 }
 
-impl<'m> Fitter<'m> {
+impl Fitter {
     /// Builds the per-model state (topology, g, encoder, shell pattern + symbolic factor).
-    pub fn new(model: &'m PanoManModel) -> Result<Self> {
-        let ev = Evaluator::new(model)?;
+    pub fn new(model: Arc<PanoManModel>) -> Result<Self> {
+        let ev = Evaluator::new(model.clone())?;
+        Self::with_evaluator(ev)
+    }
+
+    /// Builds the fitting state around an existing evaluator of the model (its topology
+    /// tables and `g`'s factorizations are reused, not rebuilt).
+    pub fn with_evaluator(ev: Evaluator) -> Result<Self> {
+        let model = ev.model.clone();
+        let model = &model;
         let topo = ev.topology().clone();
         // Narrow regressors (face landmarks, hand joints) couple their vertices in JᵀJ; wide
         // ones (body joints, 200 vertices) are dense supports, solved through the
@@ -358,7 +367,7 @@ impl<'m> Fitter<'m> {
         let mean_edge = rg.lengths.iter().sum::<f64>() / rg.lengths.len().max(1) as f64;
         let torso_weights = torso_weights(model, &rest);
         Ok(Fitter {
-            model,
+            model: model.clone(),
             ev,
             solver,
             vf,
@@ -370,8 +379,8 @@ impl<'m> Fitter<'m> {
     }
 
     /// The model.
-    pub fn model(&self) -> &'m PanoManModel {
-        self.model
+    pub fn model(&self) -> &Arc<PanoManModel> {
+        &self.model
     }
 
     /// The template topology.
@@ -436,7 +445,7 @@ impl<'m> Fitter<'m> {
             }
         }
         if let Some(f) = &c.fixed {
-            f.validate(self.model).map_err(FitError::Invalid)?;
+            f.validate(&self.model).map_err(FitError::Invalid)?;
         }
         if let Some(m) = &c.motion {
             if self.model.motion.is_none() {
@@ -464,7 +473,7 @@ impl<'m> Fitter<'m> {
                 }
             }
             prev.params
-                .validate(self.model)
+                .validate(&self.model)
                 .map_err(FitError::Invalid)?;
         }
         Ok(())
@@ -801,7 +810,7 @@ impl<'m> Fitter<'m> {
         stages.push(StageReport::timed("params", t));
         let report = FitReport {
             stages,
-            keypoint_residuals: keypoint_residuals(self.model, &c.keypoints, &x),
+            keypoint_residuals: keypoint_residuals(&self.model, &c.keypoints, &x),
             seconds: t0.elapsed().as_secs_f64(),
         };
         Ok(FitResult {

@@ -20,14 +20,15 @@ use panoman_mesh::geom::{V3, norm};
 use panoman_mesh::shell::PointConstraint;
 use panoman_model::model::PanoManModel;
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// The LBS rig on a model's template topology: the generator, its map onto the template, and
 /// the TC-127 keypoint rows of that topology. Loaded once per session.
 pub struct Rig {
     /// The Anny-equivalent generator.
-    pub generator: Generator,
+    pub generator: Arc<Generator>,
     /// Anny vertices → template vertices.
-    pub map: TopologyMap,
+    pub map: Arc<TopologyMap>,
     /// The model's topology.
     pub topology: OutputTopology,
     /// Keypoint rows on that topology.
@@ -62,18 +63,18 @@ impl Rig {
             )));
         }
         Ok(Rig {
-            generator,
-            map,
+            generator: Arc::new(generator),
+            map: Arc::new(map),
             topology,
             keypoints,
         })
     }
 
     /// The IK solver of this rig (precomputations once; reuse it across frames).
-    pub fn ik_solver(&self) -> Result<IkSolver<'_>> {
+    pub fn ik_solver(&self) -> Result<IkSolver> {
         Ok(IkSolver::new(
-            &self.generator,
-            &self.map,
+            self.generator.clone(),
+            self.map.clone(),
             self.topology,
             &self.keypoints,
         )?)
@@ -82,7 +83,7 @@ impl Rig {
 
 /// Skeletal IK of the rig to the constraint set's keypoints (the initializer, and the LBS
 /// baseline on its own).
-pub fn ik_fit(ik: &IkSolver<'_>, c: &Constraints, cfg: &IkConfig) -> Result<IkResult> {
+pub fn ik_fit(ik: &IkSolver, c: &Constraints, cfg: &IkConfig) -> Result<IkResult> {
     if c.keypoints.points.is_empty() {
         return Err(FitError::Invalid(
             "the initializer needs keypoints (none given)".into(),
@@ -176,7 +177,7 @@ impl Default for IkIcpOptions {
 /// No keypoints in `c`; invalid IK input (see [`IkSolver::solve_with_points`]).
 pub fn ik_icp(
     rig: &Rig,
-    ik: &IkSolver<'_>,
+    ik: &IkSolver,
     c: &Constraints,
     cfg: &IkConfig,
     start: &IkResult,
@@ -312,8 +313,8 @@ pub fn ik_icp(
 /// IK result (after the skeletal ICP) and the fit.
 pub fn fit_frame(
     rig: &Rig,
-    ik: &IkSolver<'_>,
-    fitter: &mut Fitter<'_>,
+    ik: &IkSolver,
+    fitter: &mut Fitter,
     c: &Constraints,
     ik_cfg: &IkConfig,
     opts: &FitOptions,
@@ -397,8 +398,8 @@ impl Sequence {
     pub fn fit_next(
         &mut self,
         rig: &Rig,
-        ik: &IkSolver<'_>,
-        fitter: &mut Fitter<'_>,
+        ik: &IkSolver,
+        fitter: &mut Fitter,
         c: &Constraints,
     ) -> Result<(IkResult, FitResult)> {
         let c = Constraints {
@@ -433,7 +434,7 @@ impl Sequence {
 
 /// The fit's starting point from an IK result: its posed and rest meshes and its skeleton pose
 /// (local Euler angles in radians by bone name, for the motion MLP).
-pub fn init_of(r: &IkResult, ik: &IkSolver<'_>, names: &[String]) -> Init {
+pub fn init_of(r: &IkResult, ik: &IkSolver, names: &[String]) -> Init {
     let pose = ik.pose_params(&r.state);
     let theta = names
         .iter()

@@ -97,7 +97,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let bones = BoneMap::new(generator.bone_names())?;
 
     let t = Instant::now();
-    let solver = IkSolver::new(&generator, &map, topology, set)?;
+    let (generator, map) = (std::sync::Arc::new(generator), std::sync::Arc::new(map));
+    let solver = IkSolver::new(generator.clone(), map.clone(), topology, set)?;
     println!(
         "topology {topology}: solver setup {:.1} ms ({} relevant vertices){}",
         1e3 * t.elapsed().as_secs_f64(),

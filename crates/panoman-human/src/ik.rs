@@ -1299,9 +1299,9 @@ impl VarSet {
 /// Inverse kinematics of the generator's LBS rig to the keypoints of one topology (module
 /// docs). Built once per generator, topology and keypoint set; [`IkSolver::solve`] can then be
 /// called any number of times (also from several threads).
-pub struct IkSolver<'a> {
-    generator: &'a Generator,
-    map: &'a TopologyMap,
+pub struct IkSolver {
+    generator: Arc<Generator>,
+    map: Arc<TopologyMap>,
     topology: OutputTopology,
     set: KeypointSet,
     row_of_tc: Vec<Option<usize>>,
@@ -1349,7 +1349,7 @@ fn euler_rad(e: [f64; 3]) -> M3 {
     }
 }
 
-impl<'a> IkSolver<'a> {
+impl IkSolver {
     /// Precomputes the keypoint model of `keypoints` (a set on `topology`, e.g.
     /// [`crate::keypoints::KeypointDefinitions::set`]): the keypoint rows composed with the
     /// topology map onto Anny's output vertices, their skinning bones `σ_kb` and coefficient
@@ -1360,11 +1360,11 @@ impl<'a> IkSolver<'a> {
     /// # Errors
     /// [`HumanError::Invalid`]: the set is invalid or not on `topology`; generator errors.
     pub fn new(
-        generator: &'a Generator,
-        map: &'a TopologyMap,
+        generator: Arc<Generator>,
+        map: Arc<TopologyMap>,
         topology: OutputTopology,
         keypoints: &KeypointSet,
-    ) -> Result<IkSolver<'a>> {
+    ) -> Result<IkSolver> {
         let t0 = Instant::now();
         keypoints
             .validate()
@@ -1389,7 +1389,7 @@ impl<'a> IkSolver<'a> {
         let anny_rows: Vec<Vec<(u32, f64)>> = keypoints
             .rows
             .iter()
-            .map(|row| anny_row(map, topology, row))
+            .map(|row| anny_row(&map, topology, row))
             .collect();
 
         // Relevant kept vertices.
@@ -1805,7 +1805,7 @@ impl<'a> IkSolver<'a> {
         let rows: Vec<Vec<(u32, f64)>> = points
             .par_iter()
             .with_min_len(256)
-            .map(|p| anny_row(self.map, self.topology, &p.rows))
+            .map(|p| anny_row(&self.map, self.topology, &p.rows))
             .collect();
         let mut local_of_slot = vec![u32::MAX; surface.kept_of_slot.len()];
         let mut verts: Vec<u32> = Vec::new();

@@ -18,8 +18,8 @@ use panoman_human::sampling::{
 use panoman_human::template::{full_template, small_template};
 
 struct Fx {
-    generator: Generator,
-    map: TopologyMap,
+    generator: std::sync::Arc<Generator>,
+    map: std::sync::Arc<TopologyMap>,
     small_set: KeypointSet,
     small_regions: Regions,
 }
@@ -36,19 +36,25 @@ fn fx() -> &'static Fx {
         let regions = Regions::full(&dir, &full).expect("regions");
         let small_regions = Regions::small(&regions, &small).expect("small regions");
         Fx {
-            generator,
-            map,
+            generator: std::sync::Arc::new(generator),
+            map: std::sync::Arc::new(map),
             small_set: defs.small,
             small_regions,
         }
     })
 }
 
-fn solver() -> &'static IkSolver<'static> {
-    static S: OnceLock<IkSolver<'static>> = OnceLock::new();
+fn solver() -> &'static IkSolver {
+    static S: OnceLock<IkSolver> = OnceLock::new();
     S.get_or_init(|| {
         let f = fx();
-        IkSolver::new(&f.generator, &f.map, OutputTopology::Small, &f.small_set).expect("solver")
+        IkSolver::new(
+            f.generator.clone(),
+            f.map.clone(),
+            OutputTopology::Small,
+            &f.small_set,
+        )
+        .expect("solver")
     })
 }
 

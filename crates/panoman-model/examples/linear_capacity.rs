@@ -21,7 +21,7 @@ fn main() {
     let ds = Dataset::open(a[2].as_ref()).unwrap();
     let ntrain: usize = a[3].parse().unwrap();
     let kind: u8 = a.get(4).map_or(1, |s| s.parse().unwrap());
-    let mut ev = Evaluator::new(&model).unwrap();
+    let mut ev = Evaluator::new(std::sync::Arc::new(model.clone())).unwrap();
     let topo = ev.topology().clone();
     let parts: Vec<u8> = a.get(5).map_or(vec![0], |s| {
         s.split(',').map(|x| x.parse().unwrap()).collect()

@@ -16,7 +16,7 @@ fn main() {
     let model = PanoManModel::load(a[1].as_ref()).unwrap();
     let mesh = io::read_mesh(a[2].as_ref()).unwrap().positions;
     let rest = io::read_mesh(a[3].as_ref()).unwrap().positions;
-    let mut ev = Evaluator::new(&model).unwrap();
+    let mut ev = Evaluator::new(std::sync::Arc::new(model.clone())).unwrap();
     let p = ev.encode(&mesh, Some(&rest), false).unwrap();
     let topo = ev.topology().clone();
     let rg = RestGeometry::new(&topo, &rest).unwrap();

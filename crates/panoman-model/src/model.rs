@@ -35,6 +35,7 @@ use panoman_mesh::{GWorkspace, Reconstructor, RestGeometry, Rla, Topology};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::Arc;
 
 /// Names of the six β blocks, in β order.
 pub const BLOCK_NAMES: [&str; 6] = ["body_l", "face_l", "hands_l", "body_a", "face_a", "hands_a"];
@@ -782,12 +783,12 @@ fn get_f64(s: &TensorStore, name: &str, shape: &[usize]) -> Result<Vec<f64>> {
 
 /// Per-topology evaluator of a model: topology tables, `g`'s factorizations and workspace, and
 /// the factored normal equations of the β encoder. Build once per loaded model.
-pub struct Evaluator<'m> {
-    /// The model.
-    pub model: &'m PanoManModel,
-    /// Topology of the template.
-    pub topo: Topology,
-    rec: Reconstructor,
+pub struct Evaluator {
+    /// The model (shared: evaluators of one model share it).
+    pub model: Arc<PanoManModel>,
+    /// Topology of the template (shared by the evaluators of one model).
+    pub topo: Arc<Topology>,
+    rec: Arc<Reconstructor>,
     ws: GWorkspace,
     /// Joint least-squares encoders for the RL blocks (0..3) and the RA blocks (3..6).
     encoders: [BlockEncoder; 2],
@@ -796,32 +797,33 @@ pub struct Evaluator<'m> {
 /// `min_β ‖A β − (x − X̄)‖² + ridge‖β‖²` over the three blocks of one quantity, where `A`
 /// (E × ΣK) scatters each block's sparse components onto its edge columns. The normal matrix
 /// `AᵀA + ridge·I` is dense (ΣK ≤ a few hundred) and factored once.
+#[derive(Clone)]
 struct BlockEncoder {
     blocks: [usize; 3],
     offsets: [usize; 4],
     llt: Option<faer::linalg::solvers::Llt<f64>>,
 }
 
-impl<'m> Evaluator<'m> {
+impl Evaluator {
     /// Builds the evaluator (topology, g's factorizations, encoder normal equations).
-    pub fn new(model: &'m PanoManModel) -> Result<Self> {
+    pub fn new(model: Arc<PanoManModel>) -> Result<Self> {
         let topo = Topology::build(model.n_vertices, &model.faces)?;
         let rec = Reconstructor::new(&topo)?;
-        Self::with_kernel(model, topo, rec)
+        Self::with_kernel(model, Arc::new(topo), Arc::new(rec))
     }
 
     /// The per-topology part (tables and g's factorizations), to build another evaluator of a
     /// model with the same template without redoing it ([`Evaluator::with_kernel`]).
-    pub fn into_kernel(self) -> (Topology, Reconstructor) {
+    pub fn into_kernel(self) -> (Arc<Topology>, Arc<Reconstructor>) {
         (self.topo, self.rec)
     }
 
     /// An evaluator from an existing per-topology kernel (see [`Evaluator::into_kernel`]);
     /// only the encoder's normal equations are built.
     pub fn with_kernel(
-        model: &'m PanoManModel,
-        topo: Topology,
-        rec: Reconstructor,
+        model: Arc<PanoManModel>,
+        topo: Arc<Topology>,
+        rec: Arc<Reconstructor>,
     ) -> Result<Self> {
         if topo.n_vertices != model.n_vertices || topo.faces != model.faces {
             return Err(ModelError::Invalid(
@@ -830,8 +832,8 @@ impl<'m> Evaluator<'m> {
         }
         let ws = rec.workspace();
         let encoders = [
-            BlockEncoder::new(model, [0, 1, 2], topo.n_edges())?,
-            BlockEncoder::new(model, [3, 4, 5], topo.n_edges())?,
+            BlockEncoder::new(&model, [0, 1, 2], topo.n_edges())?,
+            BlockEncoder::new(&model, [3, 4, 5], topo.n_edges())?,
         ];
         Ok(Self {
             model,
@@ -908,7 +910,7 @@ impl<'m> Evaluator<'m> {
     /// Least-squares β of an RLA (optionally minus a body-column residual `r` laid out as
     /// [`PanoManModel::correction_residual`]), written into `params.beta`.
     pub fn encode_beta(&self, x: &Rla, params: &mut Params, r: Option<&[f32]>) -> Result<()> {
-        let m = self.model;
+        let m = &*self.model;
         for (q, enc) in self.encoders.iter().enumerate() {
             let data = if q == 0 { &x.rl } else { &x.ra };
             let mut target = data.clone();
@@ -936,6 +938,20 @@ impl<'m> Evaluator<'m> {
     /// The topology of the model's template.
     pub fn topology(&self) -> &Topology {
         &self.topo
+    }
+}
+
+impl Clone for Evaluator {
+    /// Another evaluator of the same model sharing its topology tables and `g`'s
+    /// factorizations (only the per-call workspace is new).
+    fn clone(&self) -> Self {
+        Evaluator {
+            model: self.model.clone(),
+            topo: self.topo.clone(),
+            rec: self.rec.clone(),
+            ws: self.rec.workspace(),
+            encoders: self.encoders.clone(),
+        }
     }
 }
 

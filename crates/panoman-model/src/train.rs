@@ -31,6 +31,7 @@ use panoman_mesh::{RestGeometry, Rla, Topology};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::ops::ControlFlow;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Training configuration (see [`TrainConfig::preset`]).
@@ -642,7 +643,7 @@ pub fn train(
 /// ([`evaluate_representation`]) and the Fig. 7 curves ([`component_curves`]); returns the
 /// report section and the curve points.
 pub fn evaluate(
-    model: &PanoManModel,
+    model: &Arc<PanoManModel>,
     ds: &Dataset,
     regions: &Regions,
     cfg: &TrainConfig,
@@ -812,12 +813,12 @@ fn region_errors(a: &[V3], b: &[V3], groups: &[Vec<u32>], whole: bool) -> (f64, 
 /// encoded (α from its identity's rest shape, β by least squares on its RL/RA), rebuilt with g,
 /// rigidly aligned to the row and compared on its region.
 pub fn evaluate_representation(
-    model: &PanoManModel,
+    model: &Arc<PanoManModel>,
     ds: &Dataset,
     regions: &Regions,
     rows_per_kind: usize,
 ) -> Result<serde_json::Value> {
-    let mut ev = Evaluator::new(model)?;
+    let mut ev = Evaluator::new(model.clone())?;
     let mut out = serde_json::Map::new();
     for (kind, name) in [(1u8, "body"), (2, "face"), (3, "hands")] {
         let rows = held_out_rows(ds, kind, rows_per_kind);
@@ -873,7 +874,7 @@ pub fn component_curves(
 ) -> Result<Vec<CurvePoint>> {
     let mut points = Vec::new();
     // Topology tables and g's factorizations are shared by every truncated model.
-    let mut kernel: Option<(Topology, panoman_mesh::Reconstructor)> = None;
+    let mut kernel: Option<(Arc<Topology>, Arc<panoman_mesh::Reconstructor>)> = None;
     for (part, kind, name) in [(0usize, 1u8, "body"), (1, 2, "face"), (2, 3, "hands")] {
         let rows = held_out_rows(ds, kind, rows_per_kind);
         if rows.is_empty() {
@@ -904,9 +905,10 @@ pub fn component_curves(
             for b in [part, part + 3] {
                 truncate_block(&mut m.blocks[b], k);
             }
+            let m = Arc::new(m);
             let mut ev = match kernel.take() {
-                Some((topo, rec)) => Evaluator::with_kernel(&m, topo, rec)?,
-                None => Evaluator::new(&m)?,
+                Some((topo, rec)) => Evaluator::with_kernel(m.clone(), topo, rec)?,
+                None => Evaluator::new(m.clone())?,
             };
             let (mut rl2, mut ra2, mut nrl, mut nra) = (0.0, 0.0, 0usize, 0usize);
             let (mut mean, mut max) = (0.0, 0.0f64);

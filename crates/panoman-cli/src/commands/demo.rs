@@ -229,8 +229,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
     );
 
     println!("[8/9] encode a held-out person with the model and pose it back");
-    let model = PanoManModel::load(&model_path)?;
-    let mut ev = Evaluator::new(&model)?;
+    let model = std::sync::Arc::new(PanoManModel::load(&model_path)?);
+    let mut ev = Evaluator::new(model.clone())?;
     let row = (0..ds.n_rows)
         .find(|&r| ds.kind[r] == 1 && ds.held_out.contains(&ds.identity[r]))
         .ok_or_else(|| anyhow::anyhow!("the small dataset has no held-out body row"))?;
@@ -271,7 +271,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let kp = panoman_human::keypoints::KeypointsFile::from_all(&model.keypoints.evaluate(&target));
     let rig = panoman_fit::Rig::load(&assets, &model)?;
     let ik = rig.ik_solver()?;
-    let mut fitter = panoman_fit::Fitter::new(&model)?;
+    let mut fitter = panoman_fit::Fitter::new(model.clone())?;
     let c = panoman_fit::Constraints {
         keypoints: kp,
         ..Default::default()

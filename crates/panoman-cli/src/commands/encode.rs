@@ -33,7 +33,7 @@ pub struct EncodeArgs {
 
 /// Runs `panoman encode`.
 pub fn run(a: EncodeArgs) -> Result<()> {
-    let model = PanoManModel::load(&a.model)?;
+    let model = std::sync::Arc::new(PanoManModel::load(&a.model)?);
     let check = |path: &PathBuf| -> Result<Vec<[f64; 3]>> {
         let m = io::read_mesh(path)?;
         if m.n_vertices() != model.n_vertices || m.faces != model.faces {
@@ -51,7 +51,7 @@ pub fn run(a: EncodeArgs) -> Result<()> {
     };
     let mesh = check(&a.mesh)?;
     let rest = a.rest.as_ref().map(check).transpose()?;
-    let mut ev = Evaluator::new(&model)?;
+    let mut ev = Evaluator::new(model.clone())?;
     let corr = !a.no_correction;
     let p = ev.encode(&mesh, rest.as_deref(), corr)?;
     let back = ev.pose(&p, corr)?;

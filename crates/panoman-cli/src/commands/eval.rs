@@ -200,7 +200,7 @@ impl Noise {
 pub fn run(a: EvalArgs) -> Result<()> {
     let t_all = Instant::now();
     let preset = Preset::of(&a.preset)?;
-    let model = PanoManModel::load(&a.model)?;
+    let model = std::sync::Arc::new(PanoManModel::load(&a.model)?);
     let ds = Dataset::open(&a.data)?;
     if ds.topology_hash != model.topology_hash {
         bail!(
@@ -264,7 +264,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     // The fitting machinery.
     let rig = Rig::load(&assets, &model)?;
     let ik = rig.ik_solver()?;
-    let mut fitter = Fitter::new(&model)?;
+    let mut fitter = Fitter::new(model.clone())?;
     let opts = FitOptions::default();
     let ikc = IkConfig::default();
 
@@ -572,7 +572,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
             }
         }
         p.write(&out("composite.params.json"))?;
-        let mut ev = Evaluator::new(&model)?;
+        let mut ev = Evaluator::new(model.clone())?;
         let mesh = |x: Vec<V3>| TriMesh::new(x, model.faces.clone());
         let posed = |ev: &mut Evaluator, p: &Params| -> Result<Vec<V3>> { Ok(ev.pose(p, true)?) };
         let parts = [
@@ -742,8 +742,8 @@ const LIMBS: [Limb; 4] = [
 fn twist_study(
     model: &PanoManModel,
     rig: &Rig,
-    ik: &IkSolver<'_>,
-    fitter: &mut Fitter<'_>,
+    ik: &IkSolver,
+    fitter: &mut Fitter,
     ikc: &IkConfig,
     opts: &FitOptions,
     preset: &Preset,

@@ -188,7 +188,7 @@ fn write_json(path: &Path, v: &serde_json::Value) -> Result<()> {
 /// Runs `panoman fit`.
 pub fn run(a: FitArgs) -> Result<()> {
     let t_setup = Instant::now();
-    let model = PanoManModel::load(&a.model)?;
+    let model = std::sync::Arc::new(PanoManModel::load(&a.model)?);
     let kp = read_keypoints(&a.keypoints)?;
     let mut c = Constraints {
         keypoints: kp.clone(),
@@ -233,7 +233,7 @@ pub fn run(a: FitArgs) -> Result<()> {
         return Err(anyhow!("--motion-weight must be a finite value ≥ 0"));
     }
     let ik = rig.ik_solver()?;
-    let mut fitter = Fitter::new(&model)?;
+    let mut fitter = Fitter::new(model.clone())?;
     fitter
         .validate(&c)
         .map_err(|e| anyhow!("{}: {e}", a.keypoints.display()))?;
@@ -312,7 +312,7 @@ fn print_summary(method: &str, seconds: f64, res: &serde_json::Value, out: &Path
 
 /// Runs `panoman track`.
 pub fn run_track(a: TrackArgs) -> Result<()> {
-    let model = PanoManModel::load(&a.model)?;
+    let model = std::sync::Arc::new(PanoManModel::load(&a.model)?);
     let mut frames: Vec<PathBuf> = std::fs::read_dir(&a.frames)
         .with_context(|| a.frames.display().to_string())?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -332,7 +332,7 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
     let assets = crate::util::open_assets(a.assets.as_deref())?;
     let rig = Rig::load(&assets, &model)?;
     let ik = rig.ik_solver()?;
-    let mut fitter = Fitter::new(&model)?;
+    let mut fitter = Fitter::new(model.clone())?;
     std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
     let bar = crate::util::progress_bar(frames.len() as u64, "track");
     let mut seq = Sequence::new(

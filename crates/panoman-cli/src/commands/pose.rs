@@ -29,9 +29,9 @@ pub struct PoseArgs {
 
 /// Runs `panoman pose`.
 pub fn run(a: PoseArgs) -> Result<()> {
-    let model = PanoManModel::load(&a.model)?;
+    let model = std::sync::Arc::new(PanoManModel::load(&a.model)?);
     let params = Params::read(&a.params, &model)?;
-    let mut ev = Evaluator::new(&model)?;
+    let mut ev = Evaluator::new(model.clone())?;
     let t = Instant::now();
     let v = ev.pose(&params, !a.no_correction)?;
     let ms = t.elapsed().as_secs_f64() * 1e3;

@@ -118,7 +118,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let stem = a.out.with_extension("");
     let report_path = PathBuf::from(format!("{}.report.json", stem.display()));
     write_atomic(&report_path, serde_json::to_string_pretty(&out.report)?)?;
-    let (eval, curves) = evaluate(&out.model, &ds, &regions, &cfg, &mut stage)
+    let model = std::sync::Arc::new(out.model);
+    let (eval, curves) = evaluate(&model, &ds, &regions, &cfg, &mut stage)
         .with_context(|| a.data.display().to_string())?;
     stage("");
     pb.finish_and_clear();
@@ -136,8 +137,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         "{}: {} model ({} shape, β {}), trained in {:.1} s",
         a.out.display(),
         topo_name,
-        out.model.shape.n_components(),
-        out.model
+        model.shape.n_components(),
+        model
             .blocks
             .iter()
             .map(|b| format!("{} {}", b.name, b.n_components()))
