@@ -54,6 +54,8 @@ enum Command {
     Track(commands::fit::TrackArgs),
     /// The paper's experiments on open data: plots, renders, summary.json, index.html.
     Eval(commands::eval::EvalArgs),
+    /// Store the LBS rig in an older model file (so it fits without the asset tree).
+    EmbedRig(commands::embed_rig::EmbedRigArgs),
 }
 
 fn main() -> ExitCode {
@@ -82,6 +84,7 @@ fn main() -> ExitCode {
         Command::Fit(a) => commands::fit::run(a),
         Command::Track(a) => commands::fit::run_track(a),
         Command::Eval(a) => commands::eval::run(a),
+        Command::EmbedRig(a) => commands::embed_rig::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

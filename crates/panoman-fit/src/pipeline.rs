@@ -38,15 +38,7 @@ pub struct Rig {
 impl Rig {
     /// Loads the rig for `model`'s topology (`full` or `small`) from the assets.
     pub fn load(assets: &AssetDir, model: &PanoManModel) -> Result<Rig> {
-        let topology = match model.topology_name.as_str() {
-            "full" => OutputTopology::Full,
-            "small" => OutputTopology::Small,
-            other => {
-                return Err(FitError::Invalid(format!(
-                    "the model's topology `{other}` has no LBS rig (expected full or small)"
-                )));
-            }
-        };
+        let topology = Self::topology_of(model)?;
         let generator = Generator::load(assets, GeneratorOptions::default())?;
         let full = full_template(assets)?;
         let small = small_template(assets, &full)?;
@@ -68,6 +60,51 @@ impl Rig {
             topology,
             keypoints,
         })
+    }
+
+    /// The rig of `model`: the one embedded in the model file when it has one (no asset
+    /// access), else read from `assets` ([`Rig::load`]); `assets` is opened lazily, only
+    /// for model files without an embedded rig.
+    ///
+    /// # Errors
+    /// The model's topology has no rig; its keypoint rows do not fit it; asset errors.
+    pub fn for_model(
+        model: &PanoManModel,
+        assets: impl FnOnce() -> Result<AssetDir>,
+    ) -> Result<Rig> {
+        let Some(data) = &model.rig else {
+            return Rig::load(&assets()?, model);
+        };
+        let topology = Self::topology_of(model)?;
+        let keypoints = KeypointSet {
+            names: model.keypoints.names.clone(),
+            rows: model.keypoints.rows.clone(),
+            n_vertices: model.n_vertices,
+        };
+        if data.map.n_vertices(topology) != model.n_vertices {
+            return Err(FitError::Invalid(format!(
+                "model has {} vertices, its embedded `{}` rig topology has {}",
+                model.n_vertices,
+                model.topology_name,
+                data.map.n_vertices(topology)
+            )));
+        }
+        Ok(Rig {
+            generator: data.generator.clone(),
+            map: data.map.clone(),
+            topology,
+            keypoints,
+        })
+    }
+
+    fn topology_of(model: &PanoManModel) -> Result<OutputTopology> {
+        match model.topology_name.as_str() {
+            "full" => Ok(OutputTopology::Full),
+            "small" => Ok(OutputTopology::Small),
+            other => Err(FitError::Invalid(format!(
+                "the model's topology `{other}` has no LBS rig (expected full or small)"
+            ))),
+        }
     }
 
     /// The IK solver of this rig (precomputations once; reuse it across frames).

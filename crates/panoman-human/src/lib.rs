@@ -24,6 +24,7 @@ pub mod params;
 pub mod phenotype;
 pub mod regions;
 pub mod rig;
+pub mod rigfile;
 pub mod sampling;
 pub mod skinning;
 pub mod targets;

@@ -71,7 +71,7 @@ impl FromStr for OutputTopology {
 }
 
 /// Maps generator outputs (anny topology) to the anny, full and small meshes (module docs).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct TopologyMap {
     n_anny: usize,
     anny_faces: Vec<[u32; 3]>,
@@ -121,6 +121,38 @@ impl TopologyMap {
             small_binding,
             small_faces: small.mesh.faces.clone(),
         })
+    }
+
+    /// Index ranges of a decoded map (see [`crate::rigfile::RigData::from_bytes`]): the first
+    /// problem found, as text.
+    pub(crate) fn check(&self) -> std::result::Result<(), String> {
+        let faces_in = |faces: &[[u32; 3]], n: usize, what: &str| match faces
+            .iter()
+            .flatten()
+            .find(|&&v| v as usize >= n)
+        {
+            Some(v) => Err(format!("{what} face vertex {v} ≥ {n}")),
+            None => Ok(()),
+        };
+        if let Some(v) = self
+            .full_from_anny
+            .iter()
+            .find(|&&v| v as usize >= self.n_anny)
+        {
+            return Err(format!(
+                "full-template vertex maps to generator vertex {v} ≥ {}",
+                self.n_anny
+            ));
+        }
+        if let Some(b) = self.small_binding.iter().find(|b| {
+            b.tri.iter().any(|&v| v as usize >= self.n_anny)
+                || !b.bary.iter().all(|w| w.is_finite())
+        }) {
+            return Err(format!("small-topology binding {b:?} is out of range"));
+        }
+        faces_in(&self.anny_faces, self.n_anny, "anny")?;
+        faces_in(&self.full_faces, self.full_from_anny.len(), "full")?;
+        faces_in(&self.small_faces, self.small_binding.len(), "small")
     }
 
     /// Number of vertices of the generator's output (anny topology, 13,718).

@@ -208,7 +208,7 @@ impl Phenotype {
 }
 
 /// A feature: one phenotype axis with its named variations (anchors, §5.2).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Feature {
     /// male (0), female (1).
     Gender,
@@ -321,7 +321,7 @@ impl FeatureWeights {
 }
 
 /// The block a phenotype blendshape belongs to (§5.3).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Block {
     /// gender × age × muscle × weight (90).
     Universal,
@@ -337,7 +337,7 @@ pub enum Block {
 }
 
 /// One phenotype blendshape: its tuple of variations and its target file.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct MacroShape {
     /// The block.
     pub block: Block,

@@ -88,7 +88,7 @@ impl Affine {
 }
 
 /// Where a bone end sits on the mesh: the mean of these base vertices (§3.4, §6.2).
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum JointStrategy {
     /// `CUBE`: the unique vertices of the named joint-cube group's faces (8 in practice).
     Cube(String),
@@ -99,7 +99,7 @@ pub enum JointStrategy {
 }
 
 /// One bone of the rig, as read.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Bone {
     /// Bone name (e.g. `upperarm01.L`).
     pub name: String,
@@ -118,7 +118,7 @@ pub struct Bone {
 }
 
 /// The raw "default" rig: bones in DFS order (§6.1) with resolved joint regressors.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Rig {
     /// Bones, parents before children; bone 0 is `root`.
     pub bones: Vec<Bone>,

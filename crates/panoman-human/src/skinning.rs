@@ -27,7 +27,7 @@ struct WeightsFile {
 }
 
 /// Sparse normalised skin weights of a set of vertices (CSR layout).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct SkinWeights {
     /// Row `k` (vertex `k` of the chosen set) spans `bones[offsets[k]..offsets[k+1]]`.
     pub offsets: Vec<u32>,

@@ -24,7 +24,7 @@ use crate::error::{HumanError, Result};
 pub const NOT_KEPT: u32 = u32::MAX;
 
 /// One morph target restricted to the kept vertices, with world-frame offsets.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct SparseTarget {
     /// Kept-vertex index of each row, ascending (rows are sorted if the file is not).
     pub index: Vec<u32>,
@@ -33,7 +33,7 @@ pub struct SparseTarget {
 }
 
 /// Offsets of the rows of a [`SparseTarget`], world frame (metres, Z up, facing −Y).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub enum Offsets {
     /// Exact integer storage: row offset in metres is `Δ = 1e-4 · (n_x, n_y, n_z)` where the
     /// `n` are counts of 0.001 dm already permuted/signed to world axes, i.e.
@@ -41,6 +41,21 @@ pub enum Offsets {
     Milli(Vec<[i16; 3]>),
     /// General storage: the world-mapped offset `world_map(dx, dy, dz)` in metres.
     F64(Vec<[f64; 3]>),
+}
+
+impl Offsets {
+    /// Number of rows.
+    pub fn len(&self) -> usize {
+        match self {
+            Offsets::Milli(d) => d.len(),
+            Offsets::F64(d) => d.len(),
+        }
+    }
+
+    /// True when there are no rows.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
 }
 
 impl Default for Offsets {

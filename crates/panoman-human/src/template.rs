@@ -228,7 +228,7 @@ pub fn full_template_from(base: &BaseMesh) -> Result<Template> {
 }
 
 /// A point on a full-template triangle: vertex ids and barycentric weights (summing to 1).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Binding {
     /// Full-template vertex ids of the triangle.
     pub tri: [u32; 3],

@@ -25,10 +25,11 @@
 //! keypoint names, the training configuration and report.
 
 use crate::error::{ModelError, Result};
-use crate::mlp::{Mlp, PcaHead, TensorData, TensorStore};
+use crate::mlp::{Element, Mlp, PcaHead, TensorData, TensorStore};
 use crate::pca::ShapePca;
 use crate::splocs::SparseRows;
 use faer::{Mat, Side};
+use panoman_human::rigfile::RigData;
 use panoman_mesh::align::axis_angle;
 use panoman_mesh::geom::{V3, add, matvec};
 use panoman_mesh::{GWorkspace, Reconstructor, RestGeometry, Rla, Topology};
@@ -265,7 +266,15 @@ pub struct PanoManModel {
     pub config: serde_json::Value,
     /// Training report (free JSON).
     pub report: serde_json::Value,
+    /// The LBS rig (generator and topology map) the IK initializer and the LBS baseline need,
+    /// stored in the file as the `rig.postcard` byte tensor ([`RigData::to_bytes`]), so that
+    /// a model file alone can pose, encode, fit and track. `None` for model files written
+    /// before rigs were embedded (fitting then reads the rig from the asset tree).
+    pub rig: Option<Arc<RigData>>,
 }
+
+/// Name of the byte tensor holding the embedded rig.
+pub const RIG_TENSOR: &str = "rig.postcard";
 
 #[derive(Serialize, Deserialize)]
 struct Header {
@@ -432,6 +441,12 @@ impl PanoManModel {
     /// Builds the tensor store of [`PanoManModel::save`].
     pub fn to_store(&self) -> Result<TensorStore> {
         let mut s = TensorStore::new();
+        if let Some(rig) = &self.rig {
+            let bytes = rig
+                .to_bytes()
+                .map_err(|e| ModelError::Invalid(e.to_string()))?;
+            s.insert(RIG_TENSOR, vec![bytes.len()], TensorData::U8(bytes))?;
+        }
         let f: Vec<u32> = self.faces.iter().flatten().copied().collect();
         s.insert(
             "template.faces",
@@ -583,6 +598,15 @@ impl PanoManModel {
     /// Rebuilds a model from a tensor store (see [`PanoManModel::load`]).
     pub fn from_store(s: &TensorStore) -> Result<PanoManModel> {
         let bad = |w: String| ModelError::Invalid(w);
+        let rig = match s.get(RIG_TENSOR) {
+            None => None,
+            Some(t) => {
+                let bytes = u8::slice(&t.data)
+                    .ok_or_else(|| bad(format!("tensor '{RIG_TENSOR}' is not U8")))?;
+                let rig = RigData::from_bytes(bytes, s.source()).map_err(|e| bad(e.to_string()))?;
+                Some(Arc::new(rig))
+            }
+        };
         let hjson = s
             .metadata(MODEL_KIND)
             .ok_or_else(|| bad("not a panoman model (no 'panoman.model' header)".into()))?;
@@ -760,6 +784,7 @@ impl PanoManModel {
             },
             config: h.config,
             report: h.report,
+            rig,
         })
     }
 }

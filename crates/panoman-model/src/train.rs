@@ -628,6 +628,7 @@ pub fn train(
         keypoints: inputs.keypoints.clone(),
         config: config_json,
         report: det_report.clone(),
+        rig: None,
     };
 
     timings.insert("total_s".into(), t_all.elapsed().as_secs_f64().into());

@@ -2,9 +2,10 @@
 
 use anyhow::{Result, bail};
 use clap::Args;
+use panoman::{Correction, Model};
 use panoman_mesh::align::aligned_error;
+use panoman_mesh::geom::{norm, sub};
 use panoman_mesh::io;
-use panoman_model::model::{Evaluator, PanoManModel};
 use std::path::PathBuf;
 
 /// Arguments of `panoman encode`.
@@ -33,37 +34,50 @@ pub struct EncodeArgs {
 
 /// Runs `panoman encode`.
 pub fn run(a: EncodeArgs) -> Result<()> {
-    let model = std::sync::Arc::new(PanoManModel::load(&a.model)?);
+    let model = Model::load(&a.model)?;
     let check = |path: &PathBuf| -> Result<Vec<[f64; 3]>> {
         let m = io::read_mesh(path)?;
-        if m.n_vertices() != model.n_vertices || m.faces != model.faces {
+        if m.n_vertices() != model.n_vertices() || m.faces != model.faces() {
             bail!(
                 "{}: not in the model's {} topology ({} vertices, {} faces; the model has {} and {})",
                 path.display(),
-                model.topology_name,
+                model.topology_name(),
                 m.n_vertices(),
                 m.n_faces(),
-                model.n_vertices,
-                model.faces.len()
+                model.n_vertices(),
+                model.faces().len()
             );
         }
         Ok(m.positions)
     };
     let mesh = check(&a.mesh)?;
     let rest = a.rest.as_ref().map(check).transpose()?;
-    let mut ev = Evaluator::new(model.clone())?;
-    let corr = !a.no_correction;
-    let p = ev.encode(&mesh, rest.as_deref(), corr)?;
-    let back = ev.pose(&p, corr)?;
+    let corr = if a.no_correction {
+        Correction::Skip
+    } else {
+        Correction::Apply
+    };
+    let p = model
+        .encode(&mesh, rest.as_deref(), corr)
+        .map_err(|e| anyhow::anyhow!("{}", e.in_file(&a.mesh)))?;
+    let back = model.pose(&p, corr)?;
+    let world = back
+        .iter()
+        .zip(&mesh)
+        .map(|(a, b)| norm(sub(*a, *b)))
+        .fold((0.0f64, 0.0f64), |(mx, s), d| (mx.max(d), s + d));
     let (max, mean) = aligned_error(&back, &mesh);
     p.write(&a.out)?;
     println!(
-        "{}: α {} values, β {} values; re-posed mesh error mean {:.2} mm, max {:.2} mm",
+        "{}: α {} values, β {} values (rigid placement kept); re-posed mesh error mean {:.2} mm, \
+         max {:.2} mm (world frame: mean {:.2} mm, max {:.2} mm)",
         a.out.display(),
         p.alpha.len(),
         p.beta.values().map(Vec::len).sum::<usize>(),
         mean * 1e3,
-        max * 1e3
+        max * 1e3,
+        world.1 / mesh.len().max(1) as f64 * 1e3,
+        world.0 * 1e3
     );
     Ok(())
 }

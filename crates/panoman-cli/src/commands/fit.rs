@@ -3,15 +3,12 @@
 
 use anyhow::{Context, Result, anyhow};
 use clap::{Args, ValueEnum};
-use panoman_fit::fit::{FitOptions, FitResult, VertexHandle, keypoint_residuals, warm_fit_options};
-use panoman_fit::{
-    Constraints, Fitter, IkIcpOptions, Rig, Sequence, fit_frame, ik_config_for_noise, ik_fit,
-    ik_icp,
+use panoman::{
+    FitOutput, FitReport, FitRequest, Fitter, IkStart, Method, Model, Params, Targets, Tracker,
+    read_handles, read_points,
 };
-use panoman_human::ik::{IkConfig, IkResult, IkState};
-use panoman_human::keypoints::KeypointsFile;
+use panoman_fit::fit::FitOptions;
 use panoman_mesh::{TriMesh, io};
-use panoman_model::model::{PanoManModel, Params};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -105,214 +102,111 @@ pub struct TrackArgs {
     pub assets: Option<PathBuf>,
 }
 
-fn read_keypoints(path: &Path) -> Result<KeypointsFile> {
-    Ok(KeypointsFile::read(path)?)
-}
-
-fn read_handles(path: &Path, model: &PanoManModel) -> Result<Vec<VertexHandle>> {
-    #[derive(serde::Deserialize)]
-    #[serde(deny_unknown_fields)]
-    struct File {
-        handles: Vec<VertexHandle>,
-    }
-    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
-    let f: File = serde_json::from_str(&text)
-        .map_err(|e| anyhow!("{}: not a valid handle file: {e}", path.display()))?;
-    for (i, h) in f.handles.iter().enumerate() {
-        if h.vertex as usize >= model.n_vertices {
-            return Err(anyhow!(
-                "{}: handle {i}: vertex {} out of range (the model has {} vertices)",
-                path.display(),
-                h.vertex,
-                model.n_vertices
-            ));
-        }
-        if !h.position.iter().all(|x| x.is_finite()) || h.weight.is_nan() || h.weight < 0.0 {
-            return Err(anyhow!(
-                "{}: handle {i}: non-finite position or negative weight",
-                path.display()
-            ));
-        }
-    }
-    Ok(f.handles)
-}
-
-fn read_points(path: &Path) -> Result<Vec<[f64; 3]>> {
-    let pts = match io::MeshFormat::from_path(path)? {
-        io::MeshFormat::Ply => io::ply::read_ply_points(path)?,
-        _ => io::read_mesh(path)?.positions,
-    };
-    if pts.is_empty() {
-        return Err(anyhow!("{}: the point cloud is empty", path.display()));
-    }
-    if let Some(i) = pts.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-        return Err(anyhow!("{}: point {i} is not finite", path.display()));
-    }
-    Ok(pts)
-}
-
-/// Report of the LBS baseline.
-fn lbs_report(r: &IkResult, model: &PanoManModel, kp: &KeypointsFile) -> serde_json::Value {
-    json!({
-        "method": "lbs",
-        "seconds": r.seconds,
-        "stages": r.stages.iter().map(|s| json!({
-            "name": s.name, "seconds": s.seconds, "iterations": s.iterations,
-            "variables": s.n_variables, "cost_before": s.cost_before, "cost_after": s.cost_after,
-        })).collect::<Vec<_>>(),
-        "iterations": r.iterations,
-        "keypoint_residuals": keypoint_residuals(model, kp, &r.posed),
-    })
-}
-
-fn fit_report(ik: Option<&IkResult>, fit: &FitResult, setup_s: f64) -> serde_json::Value {
-    let ik_s = ik.map_or(0.0, |r| r.seconds);
-    json!({
-        "method": "panoman",
-        "setup_seconds": setup_s,
-        "ik": ik.map(|r| json!({
-            "seconds": r.seconds, "iterations": r.iterations,
-            "keypoint_mean_mm": r.mean_residual_mm(),
-        })),
-        "stages": fit.report.stages,
-        "fit_seconds": fit.report.seconds,
-        "total_seconds": ik_s + fit.report.seconds,
-        "keypoint_residuals": fit.report.keypoint_residuals,
-    })
-}
-
-fn write_json(path: &Path, v: &serde_json::Value) -> Result<()> {
+fn write_json<T: serde::Serialize>(path: &Path, v: &T) -> Result<()> {
     crate::util::write_atomic(path, serde_json::to_string_pretty(v)? + "\n")
 }
 
-/// Runs `panoman fit`.
-pub fn run(a: FitArgs) -> Result<()> {
-    let t_setup = Instant::now();
-    let model = std::sync::Arc::new(PanoManModel::load(&a.model)?);
-    let kp = read_keypoints(&a.keypoints)?;
-    let mut c = Constraints {
-        keypoints: kp.clone(),
+fn request(a: &FitArgs, fitter: &Fitter, model: &Model) -> Result<FitRequest> {
+    let mut req = FitRequest {
+        method: if a.baseline.is_some() {
+            Method::Lbs
+        } else {
+            Method::PanoMan
+        },
+        keypoint_sigma: a.keypoint_sigma,
+        keypoint_weight: a.keypoint_weight,
+        motion_weight: a.motion_weight,
         ..Default::default()
     };
-    if let Some(h) = &a.handles {
-        c.handles = read_handles(h, &model)?;
-    }
-    if let Some(p) = &a.points {
-        c.points = Some((read_points(p)?, None));
-    }
     if let Some(p) = &a.params {
-        c.fixed = Some(Params::read(p, &model)?);
+        req.fixed = Some(Params::read(p, model.inner())?);
     }
-    let assets = crate::util::open_assets(a.assets.as_deref())?;
-    let rig = Rig::load(&assets, &model)?;
     if let Some(p) = &a.motion {
         if a.baseline.is_some() {
             return Err(anyhow!(
                 "--motion constrains PanoMan's β_B; it does not apply to --baseline lbs"
             ));
         }
-        if model.motion.is_none() {
+        if model.inner().motion.is_none() {
             return Err(anyhow!(
                 "{}: motion data given, but the model {} has no motion MLP",
                 p.display(),
                 a.model.display()
             ));
         }
-        let gp = rig.generator.read_params(p)?;
-        c.motion = Some(
-            rig.generator
-                .bone_names()
-                .iter()
-                .zip(&gp.pose.euler_deg)
-                .filter(|(_, e)| **e != [0.0; 3])
-                .map(|(n, e)| (n.clone(), e.map(f64::to_radians)))
-                .collect(),
-        );
+        req.motion = Some(fitter.read_motion(p)?);
     }
     if !(a.motion_weight >= 0.0 && a.motion_weight.is_finite()) {
         return Err(anyhow!("--motion-weight must be a finite value ≥ 0"));
     }
-    let ik = rig.ik_solver()?;
-    let mut fitter = Fitter::new(model.clone())?;
-    fitter
-        .validate(&c)
-        .map_err(|e| anyhow!("{}: {e}", a.keypoints.display()))?;
     if !(a.keypoint_sigma >= 0.0 && a.keypoint_sigma.is_finite()) {
         return Err(anyhow!(
             "--keypoint-sigma must be a finite value ≥ 0 (metres)"
         ));
     }
-    let ikc = ik_config_for_noise(a.keypoint_sigma);
-    let setup_s = t_setup.elapsed().as_secs_f64();
-    std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
-    let opts = FitOptions {
-        keypoint_weight: a.keypoint_weight,
-        motion_weight: a.motion_weight,
-        ..Default::default()
-    };
-    match a.baseline {
-        Some(Baseline::Lbs) => {
-            let kerr = |e: panoman_fit::FitError| anyhow!("{}: {e}", a.keypoints.display());
-            let mut r = ik_fit(&ik, &c, &ikc).map_err(kerr)?;
-            if c.points.is_some() {
-                // The rig fitted to the scan too (skeletal ICP), same as PanoMan's initializer.
-                r = ik_icp(&rig, &ik, &c, &ikc, &r, &IkIcpOptions::default())
-                    .map_err(kerr)?
-                    .0;
-            }
-            io::write_mesh(
-                &a.out.join("mesh.obj"),
-                &TriMesh::new(r.posed.clone(), model.faces.clone()),
-            )?;
-            write_json(
-                &a.out.join("params.json"),
-                &r.to_json(rig.generator.bone_names()),
-            )?;
-            let rep = lbs_report(&r, &model, &kp);
-            write_json(&a.out.join("report.json"), &rep)?;
-            print_summary("lbs", r.seconds, &rep["keypoint_residuals"], &a.out);
-        }
-        None => {
-            let (ikr, fit) = fit_frame(&rig, &ik, &mut fitter, &c, &ikc, &opts, None)
-                .map_err(|e| anyhow!("{}: {e}", a.keypoints.display()))?;
-            io::write_mesh(
-                &a.out.join("mesh.obj"),
-                &TriMesh::new(fit.vertices.clone(), model.faces.clone()),
-            )?;
-            fit.params.write(&a.out.join("params.json"))?;
-            let rep = fit_report(Some(&ikr), &fit, setup_s);
-            write_json(&a.out.join("report.json"), &rep)?;
-            print_summary(
-                "panoman",
-                rep["total_seconds"].as_f64().unwrap_or(0.0),
-                &rep["keypoint_residuals"],
-                &a.out,
-            );
-        }
+    Ok(req)
+}
+
+fn write_params(path: &Path, out: &FitOutput, fitter: &Fitter) -> Result<()> {
+    match &out.params {
+        Some(p) => p.write(path)?,
+        None => write_json(path, &out.rig_params.to_json(fitter.bone_names()))?,
     }
     Ok(())
 }
 
-fn print_summary(method: &str, seconds: f64, res: &serde_json::Value, out: &Path) {
-    let groups: Vec<String> = res
-        .as_object()
-        .map(|m| {
-            m.iter()
-                .map(|(k, v)| format!("{k} {:.2}", v["mean_mm"].as_f64().unwrap_or(f64::NAN)))
-                .collect()
-        })
-        .unwrap_or_default();
+/// Runs `panoman fit`.
+pub fn run(a: FitArgs) -> Result<()> {
+    let t_setup = Instant::now();
+    let model = Model::load(&a.model)?;
+    let mut targets = Targets::read_keypoints(&a.keypoints)?;
+    if let Some(h) = &a.handles {
+        targets.handles = read_handles(h, model.n_vertices())?;
+    }
+    if let Some(p) = &a.points {
+        targets.points = Some(read_points(p)?);
+    }
+    let mut fitter = Fitter::with_assets(&model, a.assets.as_deref())?;
+    let req = request(&a, &fitter, &model)?;
+    let setup_s = t_setup.elapsed().as_secs_f64();
+    std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
+    let mut out = fitter
+        .fit(&targets, &req)
+        .map_err(|e| anyhow!("{}", e.in_file(&a.keypoints)))?;
+    out.report.setup_seconds = Some(setup_s);
+    io::write_mesh(
+        &a.out.join("mesh.obj"),
+        &TriMesh::new(out.vertices.clone(), model.faces().to_vec()),
+    )?;
+    write_params(&a.out.join("params.json"), &out, &fitter)?;
+    write_json(&a.out.join("report.json"), &out.report)?;
+    print_summary(&out.report, setup_s, &a.out);
+    Ok(())
+}
+
+fn print_summary(rep: &FitReport, setup_s: f64, out: &Path) {
+    let groups: Vec<String> = rep
+        .keypoint_residuals
+        .iter()
+        .map(|(k, v)| format!("{k} {:.2}", v.mean_mm))
+        .collect();
+    let method = match rep.method {
+        Method::PanoMan => "panoman",
+        Method::Lbs => "lbs",
+    };
     println!(
-        "{}: {method} fit in {:.2} s; keypoint residual (mm): {}",
+        "{}: {method} fit in {:.2} s (setup {:.2} s); keypoint residual (mm): {}",
         out.display(),
-        seconds,
+        rep.total_seconds,
+        setup_s,
         groups.join(", ")
     );
 }
 
 /// Runs `panoman track`.
 pub fn run_track(a: TrackArgs) -> Result<()> {
-    let model = std::sync::Arc::new(PanoManModel::load(&a.model)?);
+    let t_setup = Instant::now();
+    let model = Model::load(&a.model)?;
     let mut frames: Vec<PathBuf> = std::fs::read_dir(&a.frames)
         .with_context(|| a.frames.display().to_string())?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -325,73 +219,49 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
             a.frames.display()
         ));
     }
-    let kps: Vec<KeypointsFile> = frames
+    let targets: Vec<Targets> = frames
         .iter()
-        .map(|p| read_keypoints(p))
-        .collect::<Result<_>>()?;
-    let assets = crate::util::open_assets(a.assets.as_deref())?;
-    let rig = Rig::load(&assets, &model)?;
-    let ik = rig.ik_solver()?;
-    let mut fitter = Fitter::new(model.clone())?;
+        .map(|p| Targets::read_keypoints(p))
+        .collect::<panoman::Result<_>>()?;
+    let req = FitRequest {
+        method: if a.baseline.is_some() {
+            Method::Lbs
+        } else {
+            Method::PanoMan
+        },
+        ..Default::default()
+    };
+    let start = if a.cold { IkStart::Cold } else { IkStart::Warm };
+    let fitter = Fitter::with_assets(&model, a.assets.as_deref())?;
+    let mut tracker = Tracker::with_fitter(fitter, req, start);
+    let setup_s = t_setup.elapsed().as_secs_f64();
     std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
     let bar = crate::util::progress_bar(frames.len() as u64, "track");
-    let mut seq = Sequence::new(
-        FitOptions::default(),
-        warm_fit_options(),
-        IkConfig::default(),
-        a.cold,
-    );
-    // The LBS baseline's previous IK state (warm start).
-    let mut prev_lbs: Option<IkState> = None;
     let mut rows = Vec::new();
-    for (f, (path, kp)) in frames.iter().zip(&kps).enumerate() {
+    for (f, (path, t)) in frames.iter().zip(&targets).enumerate() {
         let stem = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| format!("{f:05}"));
-        let c = Constraints {
-            keypoints: kp.clone(),
-            ..Default::default()
-        };
-        let err = |e: panoman_fit::FitError| anyhow!("{}: {e}", path.display());
-        let (vertices, seconds, res, stage_s) = match a.baseline {
-            Some(Baseline::Lbs) => {
-                let ikc = IkConfig {
-                    initial_state: if a.cold { None } else { prev_lbs.take() },
-                    ..Default::default()
-                };
-                let r = ik_fit(&ik, &c, &ikc).map_err(err)?;
-                write_json(
-                    &a.out.join(format!("{stem}.params.json")),
-                    &r.to_json(rig.generator.bone_names()),
-                )?;
-                let res = keypoint_residuals(&model, kp, &r.posed);
-                prev_lbs = Some(r.state.clone());
-                (r.posed, r.seconds, res, json!({"ik": r.seconds}))
-            }
-            None => {
-                let (ikr, fit) = seq.fit_next(&rig, &ik, &mut fitter, &c).map_err(err)?;
-                fit.params
-                    .write(&a.out.join(format!("{stem}.params.json")))?;
-                let mut st = serde_json::Map::new();
-                st.insert("ik".into(), ikr.seconds.into());
-                for s in &fit.report.stages {
-                    st.insert(s.name.clone(), s.seconds.into());
-                }
-                (
-                    fit.vertices,
-                    ikr.seconds + fit.report.seconds,
-                    fit.report.keypoint_residuals,
-                    serde_json::Value::Object(st),
-                )
-            }
-        };
+        let out = tracker
+            .track(t)
+            .map_err(|e| anyhow!("{}", e.in_file(path)))?;
+        write_params(
+            &a.out.join(format!("{stem}.params.json")),
+            &out,
+            tracker.fitter(),
+        )?;
+        let mut st = serde_json::Map::new();
+        st.insert("ik".into(), out.report.ik.seconds.into());
+        for s in &out.report.stages {
+            st.insert(s.name.clone(), s.seconds.into());
+        }
         io::write_mesh(
             &a.out.join(format!("{stem}.obj")),
-            &TriMesh::new(vertices, model.faces.clone()),
+            &TriMesh::new(out.vertices, model.faces().to_vec()),
         )?;
-        rows.push(json!({"frame": stem, "seconds": seconds, "stages": stage_s,
-                         "keypoint_residuals": res}));
+        rows.push(json!({"frame": stem, "seconds": out.report.total_seconds,
+                         "stages": st, "keypoint_residuals": out.report.keypoint_residuals}));
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -403,6 +273,7 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
     let (med, min, max) = crate::util::median_min_max(&warm);
     let summary = json!({
         "method": if a.baseline.is_some() { "lbs" } else { "panoman" },
+        "setup_seconds": setup_s,
         "frames": rows.len(),
         "first_frame_seconds": times[0],
         "warm_seconds": {"median": med, "min": min, "max": max},

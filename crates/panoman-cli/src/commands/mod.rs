@@ -4,6 +4,7 @@ pub mod assets;
 pub mod bench;
 pub mod components;
 pub mod demo;
+pub mod embed_rig;
 pub mod encode;
 pub mod eval;
 pub mod fit;

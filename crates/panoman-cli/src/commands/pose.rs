@@ -2,8 +2,8 @@
 
 use anyhow::Result;
 use clap::Args;
+use panoman::{Correction, Model, Params};
 use panoman_mesh::{TriMesh, io};
-use panoman_model::model::{Evaluator, PanoManModel, Params};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -29,13 +29,20 @@ pub struct PoseArgs {
 
 /// Runs `panoman pose`.
 pub fn run(a: PoseArgs) -> Result<()> {
-    let model = std::sync::Arc::new(PanoManModel::load(&a.model)?);
-    let params = Params::read(&a.params, &model)?;
-    let mut ev = Evaluator::new(model.clone())?;
+    let model = Model::load(&a.model)?;
+    let params = Params::read(&a.params, model.inner())?;
+    let corr = if a.no_correction {
+        Correction::Skip
+    } else {
+        Correction::Apply
+    };
     let t = Instant::now();
-    let v = ev.pose(&params, !a.no_correction)?;
+    let v = model
+        .pose(&params, corr)
+        .map_err(|e| anyhow::anyhow!("{}", e.in_file(&a.params)))?;
     let ms = t.elapsed().as_secs_f64() * 1e3;
-    io::write_mesh(&a.out, &TriMesh::new(v, model.faces.clone()))?;
+    io::write_mesh(&a.out, &TriMesh::new(v, model.faces().to_vec()))?;
+    let model = model.inner();
     println!(
         "{}: {} vertices, posed in {ms:.1} ms ({} correction)",
         a.out.display(),

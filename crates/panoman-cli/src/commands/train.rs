@@ -4,11 +4,7 @@ use crate::plot::component_curves_files;
 use crate::util::write_atomic;
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use panoman_human::dataset::Dataset;
-use panoman_human::regions::Regions;
-use panoman_human::template::{TopologyKind, full_template, small_template};
-use panoman_model::model::KeypointRows;
-use panoman_model::train::{TrainConfig, TrainInputs, evaluate, train};
+use panoman_model::train::{TrainConfig, evaluate};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -66,40 +62,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         }
         cfg.n_shape = n;
     }
-    let ds = Dataset::open(&a.data)?;
     let assets = crate::util::open_assets(a.assets.as_deref())?;
-    let full = full_template(&assets)?;
-    let topo_name = ds.meta["topology"]["name"]
-        .as_str()
-        .unwrap_or("")
-        .to_string();
-    let full_regions = Regions::full(&assets, &full)?;
-    let small = small_template(&assets, &full)?;
-    let kp_defs = panoman_human::keypoints::load_or_build(&assets, &full, &small)?;
-    let (faces, regions, kind) = match topo_name.as_str() {
-        "full" => (full.mesh.faces.clone(), full_regions, TopologyKind::Full),
-        "small" => {
-            let r = Regions::small(&full_regions, &small)
-                .map_err(|e| anyhow::anyhow!("small regions: {e}"))?;
-            (small.mesh.faces.clone(), r, TopologyKind::Small)
-        }
-        other => bail!(
-            "{}: unknown topology '{other}' in dataset.json",
-            a.data.display()
-        ),
-    };
-    let kp = kp_defs.set(kind);
-    let keypoints = KeypointRows {
-        names: kp.names.clone(),
-        rows: kp.rows.clone(),
-    };
-    let inputs = TrainInputs {
-        dataset: &ds,
-        topology_name: topo_name.clone(),
-        faces,
-        regions: &regions,
-        keypoints,
-    };
     let pb = indicatif::ProgressBar::new_spinner();
     pb.enable_steady_tick(Duration::from_millis(150));
     // One progress reporter for training and evaluation: prints each finished stage's time.
@@ -113,7 +76,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
         stage_start = Instant::now();
         pb.set_message(name.to_string());
     };
-    let out = train(&inputs, &cfg, &mut stage).with_context(|| a.data.display().to_string())?;
+    let trained = panoman::training::train(&assets, &a.data, &cfg, &mut stage)?;
+    let (out, ds, regions) = (trained.output, trained.dataset, trained.regions);
+    let topo_name = out.model.topology_name.clone();
     out.model.save(&a.out)?;
     let stem = a.out.with_extension("");
     let report_path = PathBuf::from(format!("{}.report.json", stem.display()));

@@ -40,6 +40,8 @@ pub enum TensorData {
     U32(Vec<u32>),
     /// 64-bit signed integers.
     I64(Vec<i64>),
+    /// Bytes (opaque blobs, e.g. the serialized LBS rig of a model).
+    U8(Vec<u8>),
 }
 
 /// Element types a [`TensorStore`] can hand out as typed slices.
@@ -73,6 +75,7 @@ element!(f32, F32, "F32", |x| x.is_finite());
 element!(f64, F64, "F64", |x| x.is_finite());
 element!(u32, U32, "U32", |_| true);
 element!(i64, I64, "I64", |_| true);
+element!(u8, U8, "U8", |_| true);
 
 impl TensorData {
     fn len(&self) -> usize {
@@ -81,6 +84,7 @@ impl TensorData {
             Self::F64(v) => v.len(),
             Self::U32(v) => v.len(),
             Self::I64(v) => v.len(),
+            Self::U8(v) => v.len(),
         }
     }
 
@@ -90,6 +94,7 @@ impl TensorData {
             Self::F64(_) => Dtype::F64,
             Self::U32(_) => Dtype::U32,
             Self::I64(_) => Dtype::I64,
+            Self::U8(_) => Dtype::U8,
         }
     }
 
@@ -99,6 +104,7 @@ impl TensorData {
             Self::F64(_) => "F64",
             Self::U32(_) => "U32",
             Self::I64(_) => "I64",
+            Self::U8(_) => "U8",
         }
     }
 
@@ -108,6 +114,7 @@ impl TensorData {
             Self::F64(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
             Self::U32(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
             Self::I64(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+            Self::U8(v) => v.clone(),
         }
     }
 }
@@ -304,7 +311,7 @@ impl TensorStore {
     /// Parses safetensors bytes; `source` names the origin in later error messages.
     ///
     /// Errors: [`ModelError::Format`] for a malformed file or an unsupported dtype (supported:
-    /// F32, F64, U32, I64).
+    /// F32, F64, U32, I64, U8).
     pub fn from_bytes(bytes: &[u8], source: impl Into<PathBuf>) -> Result<Self> {
         let mut store = Self::new();
         store.source = source.into();
@@ -338,6 +345,7 @@ impl TensorStore {
                         .map(|c| i64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
                         .collect(),
                 ),
+                Dtype::U8 => TensorData::U8(raw.to_vec()),
                 other => {
                     return Err(store
                         .format_err(format!("tensor '{name}' has unsupported dtype {other:?}")));

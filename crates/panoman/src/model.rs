@@ -1,0 +1,286 @@
+//! [`Model`]: a loaded PanoMan model, shared and thread-safe ("load once, forward many").
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+use panoman_mesh::geom::V3;
+use panoman_model::model::{BLOCK_NAMES, Evaluator, PanoManModel, Params};
+
+use crate::error::{Error, Result};
+
+/// Whether the correction MLP `R(β_body)` (PanoMan Eq. 4) is added to the RL/RA of a pose.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Correction {
+    /// Add `R(β_body)` when the model has a correction network (the model's own output).
+    #[default]
+    Apply,
+    /// The linear model `X̄ + Mβ` alone (ablation).
+    Skip,
+}
+
+/// The six β blocks: {RL, RA} × {body, face, hands} (PanoMan §4). Component 0 of each
+/// block is the part's mean with a free coefficient, so a block trained with K components
+/// holds K + 1 coefficients ([`BlockInfo::size`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum BlockName {
+    /// Relative edge lengths of the body.
+    BodyLength,
+    /// Relative edge lengths of the face.
+    FaceLength,
+    /// Relative edge lengths of both hands.
+    HandsLength,
+    /// Relative dihedral angles of the body.
+    BodyAngle,
+    /// Relative dihedral angles of the face.
+    FaceAngle,
+    /// Relative dihedral angles of both hands.
+    HandsAngle,
+}
+
+impl BlockName {
+    /// All six, in the model file's order.
+    pub const ALL: [BlockName; 6] = [
+        BlockName::BodyLength,
+        BlockName::FaceLength,
+        BlockName::HandsLength,
+        BlockName::BodyAngle,
+        BlockName::FaceAngle,
+        BlockName::HandsAngle,
+    ];
+
+    /// The name used in files (`params.json` keys, `--block`): `body_l`, `face_l`, `hands_l`,
+    /// `body_a`, `face_a`, `hands_a`.
+    pub fn as_str(self) -> &'static str {
+        BLOCK_NAMES[self as usize]
+    }
+
+    /// The block of a file name (see [`BlockName::as_str`]).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the unknown block and the known ones.
+    pub fn parse(name: &str) -> Result<BlockName> {
+        BlockName::ALL
+            .into_iter()
+            .find(|b| b.as_str() == name)
+            .ok_or_else(|| {
+                Error::Invalid(format!(
+                    "unknown block '{name}' (expected one of {})",
+                    BLOCK_NAMES.join(", ")
+                ))
+            })
+    }
+}
+
+/// Size and support of one β block.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct BlockInfo {
+    /// Which block.
+    pub name: BlockName,
+    /// Number of coefficients (trained components + 1 for the mean).
+    pub size: usize,
+    /// Number of edges of the block's part (the components' support).
+    pub n_edges: usize,
+}
+
+struct Shared {
+    model: Arc<PanoManModel>,
+    /// Evaluators ready for use (topology tables and `g`'s factorizations are built once, in
+    /// [`Model::from_model`], and shared by every evaluator cloned from the first).
+    pool: Mutex<Vec<Evaluator>>,
+    prototype: Evaluator,
+}
+
+/// A loaded model: shape PCA, the six sparse localized component blocks, the correction and
+/// motion networks, the keypoint regressors and (for model files written by
+/// `panoman train`) the LBS rig the fit's initializer needs. Cheap to clone (`Arc`),
+/// `Send + Sync`; calls from several threads run in parallel.
+#[derive(Clone)]
+pub struct Model {
+    shared: Arc<Shared>,
+}
+
+impl std::fmt::Debug for Model {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let m = self.inner();
+        f.debug_struct("Model")
+            .field("topology", &m.topology_name)
+            .field("vertices", &m.n_vertices)
+            .field("rig", &m.rig.is_some())
+            .finish()
+    }
+}
+
+impl Model {
+    /// Loads and validates a model file (safetensors written by `panoman train`), and builds
+    /// the per-topology state (topology tables, `g`'s factorizations, the β encoder's normal
+    /// equations) once.
+    ///
+    /// # Errors
+    /// [`Error::Io`] / [`Error::Model`] naming the file: unreadable, not a model, inconsistent.
+    pub fn load(path: impl AsRef<Path>) -> Result<Model> {
+        let path = path.as_ref();
+        let m = PanoManModel::load(path)?;
+        Model::from_model(m).map_err(|e| match e {
+            Error::Model(m) => Error::Format {
+                path: path.to_path_buf(),
+                what: m.to_string(),
+            },
+            other => other,
+        })
+    }
+
+    /// Wraps an in-memory model (see [`Model::load`]).
+    ///
+    /// # Errors
+    /// The model's topology is invalid.
+    pub fn from_model(model: PanoManModel) -> Result<Model> {
+        let model = Arc::new(model);
+        let prototype = Evaluator::new(model.clone())?;
+        Ok(Model {
+            shared: Arc::new(Shared {
+                model,
+                pool: Mutex::new(Vec::new()),
+                prototype,
+            }),
+        })
+    }
+
+    /// The underlying model data (for the pipeline crates).
+    pub fn inner(&self) -> &Arc<PanoManModel> {
+        &self.shared.model
+    }
+
+    /// An evaluator sharing this model's per-topology state (no factorization is redone).
+    pub fn evaluator(&self) -> Evaluator {
+        self.shared.prototype.clone()
+    }
+
+    fn with_evaluator<T>(&self, f: impl FnOnce(&mut Evaluator) -> T) -> T {
+        let popped = self.shared.pool.lock().map(|mut p| p.pop()).ok().flatten();
+        let mut ev = popped.unwrap_or_else(|| self.evaluator());
+        let out = f(&mut ev);
+        if let Ok(mut p) = self.shared.pool.lock() {
+            p.push(ev);
+        }
+        out
+    }
+
+    /// Number of template vertices.
+    pub fn n_vertices(&self) -> usize {
+        self.inner().n_vertices
+    }
+
+    /// Template triangles (indices into the vertices).
+    pub fn faces(&self) -> &[[u32; 3]] {
+        &self.inner().faces
+    }
+
+    /// The template topology's name (`full`: 13,348 vertices; `small`: 1,229).
+    pub fn topology_name(&self) -> &str {
+        &self.inner().topology_name
+    }
+
+    /// Number of shape coefficients α.
+    pub fn n_shape(&self) -> usize {
+        self.inner().shape.n_components()
+    }
+
+    /// The six β blocks with their sizes.
+    pub fn blocks(&self) -> Vec<BlockInfo> {
+        let m = self.inner();
+        BlockName::ALL
+            .into_iter()
+            .zip(&m.blocks)
+            .map(|(name, b)| BlockInfo {
+                name,
+                size: b.n_components(),
+                n_edges: b.columns.len(),
+            })
+            .collect()
+    }
+
+    /// Part of each edge (0 body, 1 face, 2 left hand, 3 right hand), in the topology's edge
+    /// order.
+    pub fn edge_parts(&self) -> &[u8] {
+        &self.inner().edge_part
+    }
+
+    /// Whether the file carries the LBS rig (fits need no asset tree).
+    pub fn has_rig(&self) -> bool {
+        self.inner().rig.is_some()
+    }
+
+    /// The names of the model's keypoints (TC-127 order: 15 body, 70 face (iBUG-68 + two
+    /// pupils), 21 left hand, 21 right hand; see `docs/formats.md`).
+    pub fn keypoint_names(&self) -> &[String] {
+        &self.inner().keypoints.names
+    }
+
+    /// The keypoints of a mesh in the model's topology (`(127, 3)`, metres): each is a fixed
+    /// sparse linear combination of vertices.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] if `vertices` has the wrong count or non-finite values.
+    pub fn keypoints(&self, vertices: &[V3]) -> Result<Vec<V3>> {
+        self.check_vertices("mesh", vertices)?;
+        Ok(self.inner().keypoints.evaluate(vertices))
+    }
+
+    /// `B_P(α, β)` (PanoMan Eq. 5): the posed vertices (`(V, 3)`, metres) of the parameters,
+    /// rebuilt from their RL/RA by `g` and placed by `params.rotation` (axis-angle, radians)
+    /// and `params.translation` (metres). Missing α entries or β blocks count as 0.
+    ///
+    /// # Errors
+    /// [`Error::Model`] for parameters that do not fit the model (sizes, non-finite values).
+    pub fn pose(&self, params: &Params, correction: Correction) -> Result<Vec<V3>> {
+        params
+            .validate(self.inner())
+            .map_err(|w| Error::Invalid(format!("parameters: {w}")))?;
+        self.with_evaluator(|ev| ev.pose(params, correction == Correction::Apply))
+            .map_err(Error::from)
+    }
+
+    /// Encodes a registered mesh (the model's topology, metres) into parameters, the inverse of
+    /// [`Model::pose`]: α is the shape-PCA projection of `rest` when given (the person's rest
+    /// shape), else of the mesh itself; β is the least-squares fit of the mesh's RL/RA with the
+    /// correction applied (unless `correction` is [`Correction::Skip`]). The rigid placement is kept: `pose(encode(x))` lands where `x` is
+    /// (`rotation`/`translation` are the least-squares rigid motion from `B_P(α, β)` built in
+    /// the rest shape's gauge onto `x`).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] for wrong vertex counts or non-finite values; numerical failures.
+    pub fn encode(
+        &self,
+        vertices: &[V3],
+        rest: Option<&[V3]>,
+        correction: Correction,
+    ) -> Result<Params> {
+        self.check_vertices("mesh", vertices)?;
+        if let Some(r) = rest {
+            self.check_vertices("rest mesh", r)?;
+        }
+        self.with_evaluator(|ev| -> Result<Params> {
+            let corr = correction == Correction::Apply;
+            let mut p = ev.encode(vertices, rest, corr)?;
+            let built = ev.pose(&p, corr)?;
+            let rigid = panoman_mesh::align::rigid_align(&built, vertices, None);
+            p.rotation = panoman_fit::fit::rotation_vector(&rigid.r);
+            p.translation = rigid.t;
+            Ok(p)
+        })
+    }
+
+    fn check_vertices(&self, what: &str, v: &[V3]) -> Result<()> {
+        if v.len() != self.n_vertices() {
+            return Err(Error::Invalid(format!(
+                "{what} has {} vertices, the model's {} topology has {}",
+                v.len(),
+                self.topology_name(),
+                self.n_vertices()
+            )));
+        }
+        if let Some(i) = v.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(Error::Invalid(format!("{what}: vertex {i} is not finite")));
+        }
+        Ok(())
+    }
+}
