@@ -1,0 +1,1 @@
+//! Fetch of the real captures (in progress).
