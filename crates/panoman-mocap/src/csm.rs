@@ -149,7 +149,7 @@ pub fn parse_csm(text: &str, path: &Path) -> Result<(MarkerSequence, CsmInfo)> {
                     let m = &names[k];
                     return Err(err(ln, format!("marker `{m}` has {got} of 3 coordinates")));
                 }
-                positions.push(c.map(|x| x * 0.001));
+                positions.push(c.map(|x| x / 1000.0));
             }
             k += 1;
         }

@@ -160,7 +160,7 @@ pub fn parse_vsk(text: &str, path: &Path) -> Result<Vsk> {
                     )
                 })?,
             None => 0.0,
-        } * 0.001;
+        } / 1000.0;
         vsk.markers.push(VskMarker {
             name,
             segment,
@@ -233,7 +233,7 @@ fn position(vsk: &Vsk, n: roxmltree::Node, key: &str, path: &Path, line: u32) ->
                 })?
             }
         };
-        *o = v * 0.001;
+        *o = v / 1000.0;
     }
     Ok(out)
 }
