@@ -25,6 +25,7 @@ pub mod csm;
 mod error;
 pub mod fetch;
 pub mod markers;
+pub mod retarget;
 pub mod vsk;
 
 pub use error::{MocapError, Result};
