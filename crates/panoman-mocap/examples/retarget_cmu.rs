@@ -3,13 +3,17 @@
 //! kinematics after a similarity alignment (see `panoman_mocap::retarget`).
 //!
 //! `cargo run --release -p panoman-mocap --example retarget_cmu -- PATH/01_01.bvh [STRIDE]`
+//!
+//! The identity's shape is first fitted to the clip (24 frames spread over it, see
+//! `fit_cmu_shape`); set `RETARGET_NO_SHAPE=1` to keep the default identity (uniform scale
+//! only).
 
 use std::path::PathBuf;
 
 use panoman_human::generator::Generator;
 use panoman_human::params::ShapeParams;
 use panoman_mocap::bvh::{CMU_UNIT_M, read_bvh};
-use panoman_mocap::retarget::{CMU_EVAL_JOINTS, CmuRetarget, retarget_error};
+use panoman_mocap::retarget::{CMU_EVAL_JOINTS, CmuRetarget, fit_cmu_shape, retarget_error};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
@@ -22,7 +26,25 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .max(1);
     let bvh = read_bvh(&path)?.scaled(CMU_UNIT_M);
     let generator = Generator::load_default()?;
-    let shape = ShapeParams::default();
+    let mut shape = ShapeParams::default();
+    if std::env::var_os("RETARGET_NO_SHAPE").is_none() {
+        // Shape fit on 24 frames spread over the clip (frame 0 among them).
+        let n = bvh.n_frames();
+        let fit_frames: Vec<usize> = (0..24).map(|k| k * (n - 1) / 23).collect();
+        let t = std::time::Instant::now();
+        let fit = fit_cmu_shape(&generator, &shape, &bvh, &fit_frames, 30)?;
+        println!(
+            "shape fit on {} frames: {:.1} → {:.1} mm in {} iterations, {:.1} s; {:?} {:?}",
+            fit_frames.len(),
+            fit.before_mm,
+            fit.after_mm,
+            fit.iterations,
+            t.elapsed().as_secs_f64(),
+            fit.shape.phenotype.get("proportions"),
+            fit.shape.local_changes
+        );
+        shape = fit.shape;
+    }
     let identity = generator.identity(&shape)?;
     let rt = CmuRetarget::calibrate(&identity, &shape, &bvh, 0)?;
     println!(
@@ -55,52 +77,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "calibration frame: mean {:.1} mm after its similarity",
         e0.global_mean_mm
     );
-    if std::env::var_os("RETARGET_DEBUG").is_some() {
-        for k in (0..rig.len()).step_by((rig.len() / 20).max(1)) {
-            let ek = retarget_error(&rig[k..k + 1], &truth[k..k + 1]);
-            println!(
-                "  frame {:5}: {:6.1} mm {:?}",
-                k * stride,
-                ek.global_mean_mm,
-                ek.per_joint_mm
-                    .iter()
-                    .map(|x| x.round())
-                    .collect::<Vec<_>>()
-            );
-        }
-    }
-    if std::env::var_os("RETARGET_DEBUG").is_some() {
-        use panoman_mocap::retarget::CMU_CALIBRATION;
-        let t0 = std::time::Instant::now();
-        let _ = generator.identity(&shape)?;
-        println!("identity in {:.3} s", t0.elapsed().as_secs_f64());
-        for f in [0usize, 500, 1000, 2000] {
-            let posed = identity.pose(&rt.params(&bvh, f).pose);
-            let bp = bvh.joint_positions(f);
-            let mut worst = 0.0f64;
-            for (rc, re, bj, bk) in CMU_CALIBRATION {
-                let c = names.iter().position(|n| n == rc).unwrap();
-                let e = names.iter().position(|n| n == re).unwrap();
-                let d = panoman_mesh::geom::normalize(panoman_mesh::geom::sub(
-                    posed.bone_heads[e],
-                    posed.bone_heads[c],
-                ));
-                let t = panoman_mesh::geom::sub(
-                    bp[bvh.joint_index(bk).unwrap()],
-                    bp[bvh.joint_index(bj).unwrap()],
-                );
-                let t =
-                    panoman_mesh::geom::normalize(panoman_mesh::geom::matvec(&rt.bvh_to_rig, t));
-                worst = worst.max(
-                    panoman_mesh::geom::dot(d, t)
-                        .clamp(-1.0, 1.0)
-                        .acos()
-                        .to_degrees(),
-                );
-            }
-            println!("  frame {f}: worst segment direction error {worst:.4}°");
-        }
-    }
     let e = retarget_error(&rig, &truth);
     println!(
         "{} frames retargeted and posed in {:.1} s",

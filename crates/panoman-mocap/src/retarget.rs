@@ -227,6 +227,27 @@ impl CmuRetarget {
         let a = matmul(&[[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]], &rx);
         // 2. Calibration: swing the limb segments, parents first (table order).
         let mut local = vec![IDENTITY; names.len()];
+        // The trunk: swing `spine05` so that hip centre → shoulder centre matches.
+        let (sp, ul, ur, al, ar) = (
+            bone("spine05")?,
+            bone("upperleg01.L")?,
+            bone("upperleg01.R")?,
+            bone("upperarm01.L")?,
+            bone("upperarm01.R")?,
+        );
+        let (jl, jr, jal, jar) = (
+            joint("LeftUpLeg")?,
+            joint("RightUpLeg")?,
+            joint("LeftArm")?,
+            joint("RightArm")?,
+        );
+        let mid = |p: &[V3], a: usize, b: usize| scale(add(p[a], p[b]), 0.5);
+        let (gw, pos) = rig_fk(&parents, &rest_local, heads, &rest_rot, &local, heads[0]);
+        let d = sub(mid(&pos, al, ar), mid(&pos, ul, ur));
+        let t = matvec(&a, sub(mid(&bp, jal, jar), mid(&bp, jl, jr)));
+        let q = swing(normalize(d), normalize(t));
+        let parent_g = matmul(&gw[parents[sp].unwrap_or(0)], &rest_local[sp]);
+        local[sp] = matmul(&transpose(&parent_g), &matmul(&q, &gw[sp]));
         for (rc, re, bj, bk) in CMU_CALIBRATION {
             let (c, e, j, k) = (bone(rc)?, bone(re)?, joint(bj)?, joint(bk)?);
             let (gw, pos) = rig_fk(&parents, &rest_local, heads, &rest_rot, &local, heads[0]);
@@ -446,4 +467,269 @@ pub fn retarget_error(rig: &[Vec<V3>], bvh: &[Vec<V3>]) -> RetargetError {
         per_joint_mm: per_joint,
         global_scale: sim.scale,
     }
+}
+
+/// One shape value fitted by [`fit_cmu_shape`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ShapeKnob {
+    /// A phenotype value (in [0, 1]) by name, e.g. `proportions`.
+    Phenotype(&'static str),
+    /// Local changes (each in [−1, 1]) that share one value, e.g. both feet.
+    Changes(&'static [&'static str]),
+}
+
+/// The shape values [`fit_cmu_shape`] adjusts: limb and trunk lengths, shoulder and hip
+/// width, foot size, and the phenotype's proportions.
+pub const CMU_SHAPE_KNOBS: [ShapeKnob; 10] = [
+    ShapeKnob::Phenotype("proportions"),
+    ShapeKnob::Changes(&["measure-upperarm-length-incr"]),
+    ShapeKnob::Changes(&["measure-lowerarm-length-incr"]),
+    ShapeKnob::Changes(&["measure-upperleg-height-incr"]),
+    ShapeKnob::Changes(&["measure-lowerleg-height-incr"]),
+    ShapeKnob::Changes(&["measure-shoulder-dist-incr"]),
+    ShapeKnob::Changes(&["hip-scale-horiz-incr"]),
+    ShapeKnob::Changes(&["torso-scale-vert-incr"]),
+    ShapeKnob::Changes(&["hip-scale-vert-incr"]),
+    ShapeKnob::Changes(&["l-foot-scale-incr", "r-foot-scale-incr"]),
+];
+
+impl ShapeKnob {
+    fn bounds(self) -> (f64, f64) {
+        match self {
+            ShapeKnob::Phenotype(_) => (0.0, 1.0),
+            ShapeKnob::Changes(_) => (-1.0, 1.0),
+        }
+    }
+
+    fn get(self, s: &ShapeParams) -> f64 {
+        match self {
+            ShapeKnob::Phenotype(n) => s.phenotype.get(n).unwrap_or(0.5),
+            ShapeKnob::Changes(l) => s.local_changes.get(l[0]).copied().unwrap_or(0.0),
+        }
+    }
+
+    fn set(self, s: &mut ShapeParams, v: f64) {
+        match self {
+            ShapeKnob::Phenotype(n) => {
+                if let Some(x) = s.phenotype.get_mut(n) {
+                    *x = v;
+                }
+            }
+            ShapeKnob::Changes(l) => {
+                for label in l {
+                    s.local_changes.insert((*label).to_string(), v);
+                }
+            }
+        }
+    }
+}
+
+/// The result of [`fit_cmu_shape`].
+#[derive(Clone, Debug)]
+pub struct ShapeFit {
+    /// The fitted shape (the base shape with [`CMU_SHAPE_KNOBS`] adjusted).
+    pub shape: ShapeParams,
+    /// Mean joint error over the fitting frames before the fit (one similarity), mm.
+    pub before_mm: f64,
+    /// The same after the fit, mm.
+    pub after_mm: f64,
+    /// Levenberg–Marquardt iterations taken.
+    pub iterations: usize,
+}
+
+/// Positions of [`CMU_EVAL_JOINTS`] per frame: `(rig, bvh)`, each `[frames][14]`, metres.
+pub type JointSets = (Vec<Vec<V3>>, Vec<Vec<V3>>);
+
+/// Rig and BVH positions of [`CMU_EVAL_JOINTS`] on `frames`, for `shape` calibrated on
+/// frame `calib`.
+///
+/// # Errors
+/// Shape errors of the generator, or [`CmuRetarget::calibrate`]'s.
+pub fn cmu_joint_sets(
+    generator: &panoman_human::generator::Generator,
+    shape: &ShapeParams,
+    bvh: &Bvh,
+    calib: usize,
+    frames: &[usize],
+) -> Result<JointSets> {
+    let id = generator
+        .identity(shape)
+        .map_err(|e| inv(format!("identity: {e}")))?;
+    let rt = CmuRetarget::calibrate(&id, shape, bvh, calib)?;
+    let names = generator.bone_names();
+    let mut rig_idx = Vec::new();
+    let mut bvh_idx = Vec::new();
+    for (j, b) in CMU_EVAL_JOINTS {
+        rig_idx.push(
+            names
+                .iter()
+                .position(|n| n == b)
+                .ok_or_else(|| inv(format!("no bone `{b}`")))?,
+        );
+        bvh_idx.push(
+            bvh.joint_index(j)
+                .ok_or_else(|| inv(format!("no joint `{j}`")))?,
+        );
+    }
+    let (mut rig, mut truth) = (Vec::new(), Vec::new());
+    for &f in frames {
+        let posed = id.pose(&rt.params(bvh, f).pose);
+        rig.push(rig_idx.iter().map(|&b| posed.bone_heads[b]).collect());
+        let bp = bvh.joint_positions(f);
+        truth.push(bvh_idx.iter().map(|&j| bp[j]).collect());
+    }
+    Ok((rig, truth))
+}
+
+/// Residuals: aligned rig joints − BVH joints (metres) and the prior `√λ (v − v₀)`.
+fn shape_residuals(
+    generator: &panoman_human::generator::Generator,
+    base: &ShapeParams,
+    v: &[f64],
+    bvh: &Bvh,
+    frames: &[usize],
+) -> Result<Vec<f64>> {
+    let mut shape = base.clone();
+    for (k, x) in CMU_SHAPE_KNOBS.iter().zip(v) {
+        k.set(&mut shape, *x);
+    }
+    let (rig, truth) = cmu_joint_sets(generator, &shape, bvh, 0, frames)?;
+    let (ra, ba): (Vec<V3>, Vec<V3>) = (rig.concat(), truth.concat());
+    let sim = similarity_align(&ra, &ba);
+    let mut r: Vec<f64> = ra
+        .iter()
+        .zip(&ba)
+        .flat_map(|(x, y)| sub(sim.apply(*x), *y))
+        .collect();
+    // A weak pull to the base shape (1 unit of a knob costs as much as 5 mm on one joint).
+    let w = 0.005;
+    r.extend(
+        CMU_SHAPE_KNOBS
+            .iter()
+            .zip(v)
+            .map(|(k, x)| w * (x - k.get(base))),
+    );
+    Ok(r)
+}
+
+/// Solves the small dense system `a x = b` by Gaussian elimination with partial pivoting
+/// (`None` if singular).
+fn solve_dense(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
+    let n = b.len();
+    for c in 0..n {
+        let p = (c..n).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
+        if a[p][c].abs() < 1e-300 {
+            return None;
+        }
+        a.swap(c, p);
+        b.swap(c, p);
+        for r in c + 1..n {
+            let f = a[r][c] / a[c][c];
+            let (top, bottom) = a.split_at_mut(r);
+            for (x, y) in bottom[0][c..].iter_mut().zip(&top[c][c..]) {
+                *x -= f * y;
+            }
+            b[r] -= f * b[c];
+        }
+    }
+    let mut x = vec![0.0; n];
+    for r in (0..n).rev() {
+        let s: f64 = (r + 1..n).map(|k| a[r][k] * x[k]).sum();
+        x[r] = (b[r] - s) / a[r][r];
+    }
+    Some(x)
+}
+
+/// Fits [`CMU_SHAPE_KNOBS`] so that the retargeted rig's joints match the BVH's on
+/// `frames` (after one similarity), by Levenberg–Marquardt with forward-difference
+/// Jacobians and values clamped to their ranges; calibration on frame 0.
+///
+/// # Errors
+/// As [`cmu_joint_sets`].
+pub fn fit_cmu_shape(
+    generator: &panoman_human::generator::Generator,
+    base: &ShapeParams,
+    bvh: &Bvh,
+    frames: &[usize],
+    max_iterations: usize,
+) -> Result<ShapeFit> {
+    let knobs = CMU_SHAPE_KNOBS;
+    let mut v: Vec<f64> = knobs.iter().map(|k| k.get(base)).collect();
+    let res = |v: &[f64]| shape_residuals(generator, base, v, bvh, frames);
+    let n_pts = (frames.len() * CMU_EVAL_JOINTS.len()) as f64;
+    let mean_mm = |r: &[f64]| {
+        let m = frames.len() * CMU_EVAL_JOINTS.len();
+        r[..3 * m]
+            .chunks(3)
+            .map(|c| norm([c[0], c[1], c[2]]))
+            .sum::<f64>()
+            / n_pts
+            * 1e3
+    };
+    let mut r = res(&v)?;
+    let before_mm = mean_mm(&r);
+    let cost = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
+    let (mut mu, mut iterations) = (1e-3, 0);
+    for _ in 0..max_iterations {
+        iterations += 1;
+        let h = 1e-3;
+        let mut jac = Vec::with_capacity(knobs.len());
+        for (i, k) in knobs.iter().enumerate() {
+            let (lo, hi) = k.bounds();
+            let step = if v[i] + h > hi { -h } else { h };
+            let mut w = v.clone();
+            w[i] = (w[i] + step).clamp(lo, hi);
+            let rw = res(&w)?;
+            jac.push(
+                rw.iter()
+                    .zip(&r)
+                    .map(|(a, b)| (a - b) / step)
+                    .collect::<Vec<f64>>(),
+            );
+        }
+        let n = knobs.len();
+        let jtj: Vec<Vec<f64>> = (0..n)
+            .map(|i| (0..n).map(|j| dot_n(&jac[i], &jac[j])).collect())
+            .collect();
+        let jtr: Vec<f64> = (0..n).map(|i| -dot_n(&jac[i], &r)).collect();
+        let mut improved = false;
+        for _ in 0..8 {
+            let mut a = jtj.clone();
+            for (i, row) in a.iter_mut().enumerate() {
+                row[i] += mu * (jtj[i][i] + 1e-12);
+            }
+            let Some(d) = solve_dense(a, jtr.clone()) else {
+                break;
+            };
+            let w: Vec<f64> = knobs
+                .iter()
+                .zip(v.iter().zip(&d))
+                .map(|(k, (x, dx))| (x + dx).clamp(k.bounds().0, k.bounds().1))
+                .collect();
+            let rw = res(&w)?;
+            if cost(&rw) < cost(&r) {
+                (v, r, improved) = (w, rw, true);
+                mu = (mu / 3.0).max(1e-9);
+                break;
+            }
+            mu *= 4.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    let mut shape = base.clone();
+    for (k, x) in knobs.iter().zip(&v) {
+        k.set(&mut shape, *x);
+    }
+    Ok(ShapeFit {
+        shape,
+        before_mm,
+        after_mm: mean_mm(&r),
+        iterations,
+    })
+}
+
+fn dot_n(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
 }

@@ -113,3 +113,30 @@ fn calibrated_segments_follow_the_bvh() {
         }
     }
 }
+
+#[test]
+fn shape_fit_reduces_the_joint_error_and_respects_ranges() {
+    use panoman_mocap::retarget::{CMU_SHAPE_KNOBS, ShapeKnob, fit_cmu_shape};
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/01_01_head.bvh");
+    let bvh = read_bvh(&path).unwrap().scaled(CMU_UNIT_M);
+    let g = Generator::load_default().unwrap();
+    let frames = [0, 13, 26, 39];
+    let fit = fit_cmu_shape(&g, &ShapeParams::default(), &bvh, &frames, 8).unwrap();
+    // The default identity's proportions differ from the CMU subject's by several cm.
+    assert!(fit.before_mm > 25.0, "{}", fit.before_mm);
+    assert!(
+        fit.after_mm < 0.6 * fit.before_mm,
+        "{} → {}",
+        fit.before_mm,
+        fit.after_mm
+    );
+    for k in CMU_SHAPE_KNOBS {
+        if let ShapeKnob::Changes(labels) = k {
+            for l in labels {
+                let v = fit.shape.local_changes.get(*l).copied().unwrap();
+                assert!((-1.0..=1.0).contains(&v), "{l} = {v}");
+            }
+        }
+    }
+    fit.shape.validate().unwrap();
+}
