@@ -97,6 +97,42 @@ pub fn parse_csm(text: &str, path: &Path) -> Result<(MarkerSequence, CsmInfo)> {
     if rate <= 0.0 {
         return Err(format_err(path, format!("$Rate {rate} is not positive")));
     }
+    let (positions, frame0, n_rows) = parse_rows(lines, &names, first, path)?;
+    if n_rows == 0 {
+        return Err(err(points_line, "zero frames after `$Points`".into()));
+    }
+    if let (Some(f), Some(l)) = (first, last)
+        && l - f + 1 != n_rows as i64
+    {
+        return Err(format_err(
+            path,
+            format!(
+                "$FirstFrame {f} .. $LastFrame {l} is {} frames but the file has {n_rows}",
+                l - f + 1
+            ),
+        ));
+    }
+    let seq = MarkerSequence {
+        names,
+        rate_hz: rate,
+        first_frame: frame0,
+        positions,
+        source_unit: "mm".into(),
+        metres_per_unit: 0.001,
+        up_axis: Some(UpAxis::Z),
+        up_source: UpSource::Convention,
+    };
+    Ok((seq, info))
+}
+
+/// Rows after `$Points`: `(positions in metres, first row's frame number, row count)`.
+fn parse_rows<'a>(
+    lines: impl Iterator<Item = (usize, &'a str)>,
+    names: &[String],
+    first: Option<i64>,
+    path: &Path,
+) -> Result<(Vec<[f64; 3]>, i64, usize)> {
+    let err = |line: usize, what: String| format_err(path, format!("line {line}: {what}"));
     let n = names.len();
     let mut positions: Vec<[f64; 3]> = Vec::new();
     let mut frame0 = None;
@@ -161,32 +197,7 @@ pub fn parse_csm(text: &str, path: &Path) -> Result<(MarkerSequence, CsmInfo)> {
         }
         n_rows += 1;
     }
-    if n_rows == 0 {
-        return Err(err(points_line, "zero frames after `$Points`".into()));
-    }
-    let frame0 = frame0.unwrap_or(1);
-    if let (Some(f), Some(l)) = (first, last)
-        && l - f + 1 != n_rows as i64
-    {
-        return Err(format_err(
-            path,
-            format!(
-                "$FirstFrame {f} .. $LastFrame {l} is {} frames but the file has {n_rows}",
-                l - f + 1
-            ),
-        ));
-    }
-    let seq = MarkerSequence {
-        names,
-        rate_hz: rate,
-        first_frame: frame0,
-        positions,
-        source_unit: "mm".into(),
-        metres_per_unit: 0.001,
-        up_axis: Some(UpAxis::Z),
-        up_source: UpSource::Convention,
-    };
-    Ok((seq, info))
+    Ok((positions, frame0.unwrap_or(1), n_rows))
 }
 
 /// The first 40 characters of a token, for messages.

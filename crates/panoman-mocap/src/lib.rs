@@ -19,6 +19,8 @@
 //! Every error is a [`MocapError`] whose message names the file and what is wrong; no
 //! reader panics on malformed input, and allocations are bounded by the input's size.
 
+#![warn(missing_docs)]
+
 pub mod bvh;
 pub mod c3d;
 pub mod csm;
