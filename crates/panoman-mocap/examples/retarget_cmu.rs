@@ -27,10 +27,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let bvh = read_bvh(&path)?.scaled(CMU_UNIT_M);
     let generator = Generator::load_default()?;
     let mut shape = ShapeParams::default();
+    let mut fit_frames: Vec<usize> = Vec::new();
     if std::env::var_os("RETARGET_NO_SHAPE").is_none() {
         // Shape fit on 24 frames spread over the clip (frame 0 among them).
         let n = bvh.n_frames();
-        let fit_frames: Vec<usize> = (0..24).map(|k| k * (n - 1) / 23).collect();
+        fit_frames = (0..24).map(|k| k * (n - 1) / 23).collect();
         let t = std::time::Instant::now();
         let fit = fit_cmu_shape(&generator, &shape, &bvh, &fit_frames, 30)?;
         println!(
@@ -78,6 +79,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         e0.global_mean_mm
     );
     let e = retarget_error(&rig, &truth);
+    if !fit_frames.is_empty() {
+        // The frames the shape was not fitted on.
+        let keep: Vec<usize> = (0..rig.len())
+            .filter(|k| !fit_frames.contains(&(k * stride)))
+            .collect();
+        let pick = |v: &[Vec<[f64; 3]>]| keep.iter().map(|&k| v[k].clone()).collect::<Vec<_>>();
+        let h = retarget_error(&pick(&rig), &pick(&truth));
+        println!(
+            "on the {} frames not used by the shape fit: mean {:.1} mm (one similarity), {:.1} mm (per frame)",
+            keep.len(),
+            h.global_mean_mm,
+            h.per_frame_mean_mm
+        );
+    }
     println!(
         "{} frames retargeted and posed in {:.1} s",
         rig.len(),

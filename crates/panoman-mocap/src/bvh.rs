@@ -97,7 +97,8 @@ impl Channel {
 pub struct BvhJoint {
     /// Joint name.
     pub name: String,
-    /// Parent index in [`Bvh::joints`] (`None` for the root); parents come first.
+    /// Parent index in [`Bvh::joints`] (`None` for a root); must be smaller than the
+    /// joint's own index (as [`parse_bvh`] produces; forward kinematics relies on it).
     pub parent: Option<usize>,
     /// Offset from the parent joint in the parent's frame, file units.
     pub offset: [f64; 3],
@@ -256,7 +257,8 @@ impl Bvh {
     }
 
     /// The BVH text (tabs for indentation; numbers in Rust's shortest round-trip form, so
-    /// [`parse_bvh`] reads back the same values exactly).
+    /// [`parse_bvh`] reads back the same values exactly). Joints are written depth-first
+    /// from each root (children in index order), and each row's values in that order.
     pub fn to_text(&self) -> String {
         let mut s = String::from("HIERARCHY\n");
         let kids =
@@ -268,6 +270,7 @@ impl Bvh {
         let mut stack: Vec<(usize, usize, bool)> =
             roots.iter().rev().map(|&r| (r, 0, false)).collect();
         let v3 = |v: [f64; 3]| format!("{} {} {}", v[0], v[1], v[2]);
+        let mut visit = Vec::with_capacity(self.joints.len());
         while let Some((j, d, opened)) = stack.pop() {
             let ind = "\t".repeat(d);
             let jt = &self.joints[j];
@@ -292,6 +295,7 @@ impl Bvh {
             let ch: Vec<&str> = jt.channels.iter().map(|c| c.name()).collect();
             let _ = writeln!(s, "{ind}\tCHANNELS {} {}", ch.len(), ch.join(" "));
             stack.push((j, d, true));
+            visit.push(j);
             let k: Vec<usize> = kids(j).collect();
             stack.extend(k.iter().rev().map(|&c| (c, d + 1, false)));
         }
@@ -301,8 +305,21 @@ impl Bvh {
             self.n_frames(),
             self.frame_time_s
         );
+        // Rows follow the written (depth-first) joint order, which is `joints` order for
+        // anything read by `parse_bvh`.
+        let mut start = Vec::with_capacity(self.joints.len());
+        let mut k = 0;
+        for j in &self.joints {
+            start.push(k);
+            k += j.channels.len();
+        }
         for f in 0..self.n_frames() {
-            let row: Vec<String> = self.frame(f).iter().map(|v| v.to_string()).collect();
+            let values = self.frame(f);
+            let row: Vec<String> = visit
+                .iter()
+                .flat_map(|&j| &values[start[j]..start[j] + self.joints[j].channels.len()])
+                .map(|v| v.to_string())
+                .collect();
             s.push_str(&row.join(" "));
             s.push('\n');
         }
@@ -371,7 +388,8 @@ impl<'a> Toks<'a> {
     }
 }
 
-/// Parses BVH text; `path` names the source in errors.
+/// Parses BVH text; `path` names the source in errors. Several `ROOT` hierarchies may
+/// follow each other; their joints are numbered in file order.
 ///
 /// # Errors
 /// [`MocapError::Format`] naming `path` and the line: a missing `HIERARCHY`/`ROOT`/`MOTION`,
@@ -400,9 +418,17 @@ pub fn parse_bvh(text: &str, path: &Path) -> Result<Bvh> {
     toks.expect("ROOT")?;
     let mut joints = Vec::new();
     parse_joint(&mut toks, &mut joints, None, 0)?;
+    while toks
+        .t
+        .get(toks.i)
+        .is_some_and(|t| t.1.eq_ignore_ascii_case("ROOT"))
+    {
+        toks.i += 1;
+        parse_joint(&mut toks, &mut joints, None, 0)?;
+    }
     if toks.i < toks.t.len() {
         return Err(toks.err(format!(
-            "unexpected `{}` after the root joint",
+            "unexpected `{}` after the hierarchy",
             clip(toks.t[toks.i].1)
         )));
     }

@@ -191,8 +191,8 @@ fn bad_bvh_input() {
         ),
         (ok.replacen("}\n", "", 1), "expected `}`"),
         (
-            ok.replace("ROOT R", "ROOT R\n{\nOFFSET 0 0 0\n}\nROOT Q"),
-            "after the root joint",
+            ok.replace("MOTION", "JOINT X\nMOTION"),
+            "after the hierarchy",
         ),
         (chain("", "", ""), "no channels"),
     ];
@@ -231,4 +231,40 @@ fn scaled_scales_lengths_not_angles() {
     assert_eq!(s.joints[1].offset, [0.0, 1.0, 0.0]);
     let (p, q) = (b.joint_positions(0), s.joint_positions(0));
     assert!(dist(q[1], p[1].map(|x| x * 0.5)) < 1e-12);
+}
+
+#[test]
+fn two_roots_and_reordered_joints_round_trip() {
+    let one = chain("Xposition Zrotation", "Yrotation", "1 2 3");
+    let two = one.replace(
+        "MOTION",
+        "ROOT S\n{\n OFFSET 5 5 5\n CHANNELS 1 Zrotation\n}\nMOTION",
+    );
+    let two = two.replace("\n1 2 3\n", "\n1 2 3 45\n");
+    let b = parse_bvh(&two, Path::new("two.bvh")).unwrap();
+    assert_eq!(b.joints.len(), 3);
+    assert_eq!((b.joints[2].name.as_str(), b.joints[2].parent), ("S", None));
+    assert_eq!(b.joint_positions(0)[2], [5.0, 5.0, 5.0]);
+    assert_eq!(parse_bvh(&b.to_text(), Path::new("rt.bvh")).unwrap(), b);
+    // Joints stored R, S, C (C a child of R; parents still first): the text is written
+    // depth-first per root (R, C, S) and the rows follow, so FK is unchanged on reading.
+    let mut r = b.clone();
+    r.joints = vec![
+        b.joints[0].clone(),
+        b.joints[2].clone(),
+        b.joints[1].clone(),
+    ];
+    r.joints[2].parent = Some(0);
+    r.motion = vec![1.0, 2.0, 45.0, 3.0];
+    let back = parse_bvh(&r.to_text(), Path::new("rt.bvh")).unwrap();
+    assert_eq!(back.joints[1].name, "C");
+    assert_eq!(back.motion, [1.0, 2.0, 3.0, 45.0]);
+    let (p, q) = (r.joint_positions(0), back.joint_positions(0));
+    for (j, x) in r.joints.iter().zip(&p) {
+        assert!(
+            dist(*x, q[back.joint_index(&j.name).unwrap()]) < 1e-12,
+            "{}",
+            j.name
+        );
+    }
 }
