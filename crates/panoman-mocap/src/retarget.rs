@@ -35,11 +35,15 @@ use panoman_mesh::geom::{
 use crate::bvh::{Bvh, Rigid};
 use crate::error::{MocapError, Result};
 
-/// Rig bone ← BVH joint whose world rotation change drives it (both sides).
+/// Rig bone ← BVH joint whose world rotation change drives it (both sides). The spine is
+/// matched by height above the hip joints: CMU `LowerBack` (≈ 0.10 m) ↔ `spine04`
+/// (0.08 m), `Spine` (0.22 m) ↔ `spine02` (0.22 m), `Spine1` (0.33 m) ↔ `spine01`
+/// (0.36 m); `spine05` follows the root (`Hips`). (Driving `spine05`/`spine03` instead
+/// doubles the shoulder error.)
 pub const CMU_DRIVERS: [(&str, &str); 33] = [
     ("root", "Hips"),
-    ("spine05", "LowerBack"),
-    ("spine03", "Spine"),
+    ("spine04", "LowerBack"),
+    ("spine02", "Spine"),
     ("spine01", "Spine1"),
     ("neck01", "Neck"),
     ("neck02", "Neck1"),
