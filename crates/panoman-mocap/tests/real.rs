@@ -45,6 +45,19 @@ fn full_csm_vsk_bvh() {
     let Some(d) = dir() else { return };
     let (m, _) = csm::read_csm(&d.join("ThomasFechten.csm")).unwrap();
     assert_eq!((m.n_markers(), m.n_frames(), m.rate_hz), (43, 2439, 120.0));
+    // "A knee–ankle distance varies by 52 mm std on one side" (capture glitches).
+    let std_mm = |a: &str, b: &str| {
+        let (i, j) = (m.marker_index(a).unwrap(), m.marker_index(b).unwrap());
+        let d: Vec<f64> = (0..m.n_frames())
+            .filter_map(|f| Some((m.get(f, i)?, m.get(f, j)?)))
+            .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt())
+            .collect();
+        let mean = d.iter().sum::<f64>() / d.len() as f64;
+        (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / d.len() as f64).sqrt() * 1e3
+    };
+    let (l, r) = (std_mm("LKNE", "LANK"), std_mm("RKNE", "RANK"));
+    eprintln!("knee–ankle distance std: left {l:.1} mm, right {r:.1} mm");
+    assert!((l.max(r) - 52.0).abs() < 3.0 && l.min(r) < 20.0, "{l} {r}");
     let v = vsk::read_vsk(&d.join("Nick01.vsk")).unwrap();
     assert_eq!(v.markers.len(), 53);
     let b = bvh::read_bvh(&d.join("01_01.bvh")).unwrap();
