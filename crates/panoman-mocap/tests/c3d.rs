@@ -298,3 +298,30 @@ fn integer_storage_overflow_is_refused_by_the_writer() {
     let e = write_c3d(&synthetic(None), &o).unwrap_err();
     assert!(e.to_string().contains("int16"), "{e}");
 }
+
+#[test]
+fn more_than_255_markers_use_labels2() {
+    let (nm, nf) = (300, 2);
+    let seq = MarkerSequence {
+        names: (0..nm).map(|i| format!("M{i:03}")).collect(),
+        rate_hz: 50.0,
+        first_frame: 1,
+        positions: (0..nm * nf).map(|i| [i as f64 * 1e-3, 0.0, 1.0]).collect(),
+        source_unit: "mm".into(),
+        metres_per_unit: 0.001,
+        up_axis: None,
+        up_source: UpSource::Unknown,
+    };
+    for processor in [Processor::Intel, Processor::Mips] {
+        let o = C3dWriteOptions {
+            processor,
+            ..Default::default()
+        };
+        let c = parse_c3d(&write_c3d(&seq, &o).unwrap(), Path::new("big.c3d")).unwrap();
+        assert_eq!(c.param("POINT", "LABELS").unwrap().strings().len(), 255);
+        assert_eq!(c.param("POINT", "LABELS2").unwrap().strings().len(), 45);
+        assert_eq!(c.markers.names, seq.names);
+        // 599 mm is exact in f32.
+        assert!((c.markers.get(1, 299).unwrap()[0] - 0.599).abs() < 1e-15);
+    }
+}

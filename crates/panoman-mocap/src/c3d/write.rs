@@ -45,7 +45,8 @@ enum Rec<'a> {
 /// Serializes `seq` (metres, missing = NaN) as a C3D file.
 ///
 /// Missing samples get residual word −1 and zero coordinates; present samples residual 0.
-/// `POINT:Y_SCREEN` is written when [`MarkerSequence::up_axis`] is known.
+/// `POINT:Y_SCREEN` is written when [`MarkerSequence::up_axis`] is known. Labels go to
+/// `POINT:LABELS`, `LABELS2`, … (255 per parameter).
 ///
 /// # Errors
 /// [`MocapError::Invalid`] for an empty sequence, more than 65535 points or frames, a
@@ -78,6 +79,13 @@ pub fn write_c3d(seq: &MarkerSequence, opts: &C3dWriteOptions) -> Result<Vec<u8>
         return Err(inv("a label is longer than 255 bytes".into()));
     }
     let na = opts.analog_channels;
+    // At most 255 labels per parameter: LABELS, LABELS2, LABELS3, …
+    let label_keys: Vec<String> = (0..np.div_ceil(255))
+        .map(|k| match k {
+            0 => "LABELS".to_string(),
+            _ => format!("LABELS{}", k + 1),
+        })
+        .collect();
     let mut recs = vec![
         Rec::Group(1, "POINT"),
         Rec::Int(1, "USED", vec![np as u16 as i16]),
@@ -85,9 +93,11 @@ pub fn write_c3d(seq: &MarkerSequence, opts: &C3dWriteOptions) -> Result<Vec<u8>
         Rec::Float(1, "RATE", seq.rate_hz as f32),
         Rec::Int(1, "DATA_START", vec![0]), // patched below
         Rec::Int(1, "FRAMES", vec![nf as u16 as i16]),
-        Rec::Chars(1, "LABELS", seq.names.clone(), true),
         Rec::Chars(1, "UNITS", vec![opts.unit.clone()], false),
     ];
+    for (key, chunk) in label_keys.iter().zip(seq.names.chunks(255)) {
+        recs.push(Rec::Chars(1, key, chunk.to_vec(), true));
+    }
     if let Some(up) = seq.up_axis {
         let (x, y) = screen_axes(up);
         recs.push(Rec::Chars(1, "X_SCREEN", vec![x.into()], false));
