@@ -20,5 +20,6 @@
 
 pub mod error;
 pub mod glb;
+pub mod keypoints_in;
 
 pub use error::{InterchangeError, Result};
