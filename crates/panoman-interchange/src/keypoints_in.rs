@@ -245,13 +245,13 @@ pub fn parse_keypoints(text: &str, path: &Path, options: &ImportOptions) -> Resu
     let doc: Value = serde_json::from_str(text)
         .map_err(|e| InterchangeError::format(path, format!("invalid JSON: {e}")))?;
     let layout = detect(&doc, path)?;
-    if let Some(want) = options.format {
-        if layout.format() != want {
-            return Err(InterchangeError::format(
-                path,
-                format!("expected {want:?} keypoints, the file's keys say {layout:?}"),
-            ));
-        }
+    if let Some(want) = options.format
+        && layout.format() != want
+    {
+        return Err(InterchangeError::format(
+            path,
+            format!("expected {want:?} keypoints, the file's keys say {layout:?}"),
+        ));
     }
     let fmt = |w: String| InterchangeError::format(path, w);
     let mut acc = Acc {
@@ -273,10 +273,10 @@ pub fn parse_keypoints(text: &str, path: &Path, options: &ImportOptions) -> Resu
             }
         }
         Layout::PanopticFace => {
-            if let Some(p) = pick(&doc, "people", options.person).map_err(fmt)? {
-                if let Some(face) = p.get("face70") {
-                    panoptic_part(face, "face70", FACE_OFFSET, N_FACE, &mut acc).map_err(fmt)?;
-                }
+            if let Some(p) = pick(&doc, "people", options.person).map_err(fmt)?
+                && let Some(face) = p.get("face70")
+            {
+                panoptic_part(face, "face70", FACE_OFFSET, N_FACE, &mut acc).map_err(fmt)?;
             }
         }
         Layout::PanopticHand => {
@@ -408,13 +408,11 @@ fn openpose(doc: &Value, person: usize, acc: &mut Acc) -> std::result::Result<()
             any2d = Some(format!("{stem}_2d"));
         }
     }
-    if !any3d {
-        if let Some(k) = any2d {
-            return Err(format!(
-                "only 2D OpenPose keypoints (`{k}`); a 3D fit needs the `_3d` arrays \
+    if !any3d && let Some(k) = any2d {
+        return Err(format!(
+            "only 2D OpenPose keypoints (`{k}`); a 3D fit needs the `_3d` arrays \
                  (OpenPose's 3D reconstruction, x y z c per point)"
-            ));
-        }
+        ));
     }
     for (stem, n, map) in &groups {
         let key = format!("{stem}_3d");
