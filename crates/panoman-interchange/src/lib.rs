@@ -21,5 +21,6 @@
 pub mod error;
 pub mod glb;
 pub mod keypoints_in;
+pub mod viewer;
 
 pub use error::{InterchangeError, Result};
