@@ -21,6 +21,7 @@
 pub mod error;
 pub mod glb;
 pub mod keypoints_in;
+pub mod sequence;
 pub mod viewer;
 
 pub use error::{InterchangeError, Result};
