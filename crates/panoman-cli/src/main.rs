@@ -54,6 +54,10 @@ enum Command {
     Track(commands::fit::TrackArgs),
     /// The paper's experiments on open data: plots, renders, summary.json, index.html.
     Eval(commands::eval::EvalArgs),
+    /// Export a mesh or a folder of per-frame meshes as glTF 2.0 binary (.glb).
+    Export(commands::export::ExportArgs),
+    /// Write one self-contained offline HTML viewer of a .glb, a mesh or a mesh folder.
+    View(commands::view::ViewArgs),
 }
 
 fn main() -> ExitCode {
@@ -82,6 +86,8 @@ fn main() -> ExitCode {
         Command::Fit(a) => commands::fit::run(a),
         Command::Track(a) => commands::fit::run_track(a),
         Command::Eval(a) => commands::eval::run(a),
+        Command::Export(a) => commands::export::run(a),
+        Command::View(a) => commands::view::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

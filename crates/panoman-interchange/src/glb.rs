@@ -67,6 +67,25 @@ pub struct Markers {
     pub frames: Vec<Vec<Option<V3>>>,
 }
 
+impl Markers {
+    /// Markers named by the TC-127 keypoints given in any of `frames` (one keypoints file per
+    /// mesh frame), in TC-127 order.
+    pub fn from_keypoints(frames: &[panoman_human::keypoints::KeypointsFile]) -> Markers {
+        let names = panoman_human::keypoints::keypoint_names();
+        let used: std::collections::BTreeSet<usize> = frames
+            .iter()
+            .flat_map(|k| k.points.keys().copied())
+            .collect();
+        Markers {
+            names: used.iter().map(|&i| names[i].clone()).collect(),
+            frames: frames
+                .iter()
+                .map(|k| used.iter().map(|i| k.points.get(i).copied()).collect())
+                .collect(),
+        }
+    }
+}
+
 /// Options of [`export_glb`].
 #[derive(Clone, Debug)]
 pub struct GlbOptions {
