@@ -427,13 +427,13 @@ fn marker_mesh(b: &mut Builder, r: f64) -> Value {
 }
 
 /// panoman (Z up, faces −Y) → glTF (Y up, faces +Z), as `f32`.
-fn to_gltf(p: V3) -> [f32; 3] {
+pub(crate) fn to_gltf(p: V3) -> [f32; 3] {
     [p[0] as f32, p[2] as f32, (-p[1]) as f32]
 }
 
 /// Area-weighted unit vertex normals in glTF axes; +Y for vertices with no (non-degenerate)
 /// incident triangle.
-fn vertex_normals(positions: &[V3], faces: &[[u32; 3]]) -> Vec<[f32; 3]> {
+pub(crate) fn vertex_normals(positions: &[V3], faces: &[[u32; 3]]) -> Vec<[f32; 3]> {
     let mut acc = vec![[0.0f64; 3]; positions.len()];
     for f in faces {
         let [a, b, c] = f.map(|v| positions[v as usize]);
@@ -463,22 +463,23 @@ fn vertex_normals(positions: &[V3], faces: &[[u32; 3]]) -> Vec<[f32; 3]> {
         .collect()
 }
 
-const ARRAY_BUFFER: u32 = 34962;
+pub(crate) const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
-const FLOAT: u32 = 5126;
+pub(crate) const FLOAT: u32 = 5126;
+pub(crate) const UNSIGNED_SHORT: u32 = 5123;
 const UNSIGNED_INT: u32 = 5125;
 
 /// The binary buffer under construction with its buffer views and accessors.
 #[derive(Default)]
-struct Builder {
-    bin: Vec<u8>,
-    views: Vec<Value>,
-    accessors: Vec<Value>,
+pub(crate) struct Builder {
+    pub(crate) bin: Vec<u8>,
+    pub(crate) views: Vec<Value>,
+    pub(crate) accessors: Vec<Value>,
 }
 
 impl Builder {
     /// Appends a 4-byte aligned buffer view; returns its index.
-    fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
+    pub(crate) fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
         while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
@@ -492,7 +493,7 @@ impl Builder {
     }
 
     /// A float VEC3 accessor (with exact `min`/`max` when asked); returns its index.
-    fn vec3(&mut self, data: &[[f32; 3]], target: Option<u32>, minmax: bool) -> usize {
+    pub(crate) fn vec3(&mut self, data: &[[f32; 3]], target: Option<u32>, minmax: bool) -> usize {
         let bytes: Vec<u8> = data
             .iter()
             .flatten()
@@ -517,7 +518,7 @@ impl Builder {
     }
 
     /// A float SCALAR accessor (animation data, no buffer-view target); returns its index.
-    fn scalars(&mut self, data: &[f32], minmax: bool) -> usize {
+    pub(crate) fn scalars(&mut self, data: &[f32], minmax: bool) -> usize {
         let bytes: Vec<u8> = data.iter().flat_map(|x| x.to_le_bytes()).collect();
         let view = self.view(&bytes, None);
         let mut a = json!({"bufferView": view, "componentType": FLOAT, "count": data.len(), "type": "SCALAR"});
@@ -531,8 +532,24 @@ impl Builder {
         self.accessors.len() - 1
     }
 
+    /// An accessor of any type over raw little-endian `bytes` (no min/max); returns its index.
+    pub(crate) fn raw(
+        &mut self,
+        bytes: &[u8],
+        component: u32,
+        count: usize,
+        kind: &str,
+        target: Option<u32>,
+    ) -> usize {
+        let view = self.view(bytes, target);
+        self.accessors
+            .push(json!({"bufferView": view, "componentType": component,
+                                   "count": count, "type": kind}));
+        self.accessors.len() - 1
+    }
+
     /// An unsigned-int index accessor over the triangles; returns its index.
-    fn indices(&mut self, faces: &[[u32; 3]]) -> usize {
+    pub(crate) fn indices(&mut self, faces: &[[u32; 3]]) -> usize {
         let bytes: Vec<u8> = faces
             .iter()
             .flatten()
@@ -548,7 +565,7 @@ impl Builder {
 
 /// The GLB container: 12-byte header, the JSON chunk (padded with spaces) and the BIN chunk
 /// (padded with zeros), both 4-byte aligned.
-fn glb_container(doc: &Value, bin: &[u8]) -> Vec<u8> {
+pub(crate) fn glb_container(doc: &Value, bin: &[u8]) -> Vec<u8> {
     let mut json = serde_json::to_vec(doc).expect("serializing a serde_json::Value cannot fail");
     while !json.len().is_multiple_of(4) {
         json.push(b' ');

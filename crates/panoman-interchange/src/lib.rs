@@ -5,6 +5,8 @@
 //! * [`glb`]: glTF 2.0 binary export of a mesh, a mesh sequence (morph-target animation at the
 //!   sequence's frame rate) and keypoint/marker tracks; every file passes the Khronos
 //!   glTF-Validator with no errors and no warnings (tested).
+//! * [`skinned`]: the LBS rig as a skinned glTF armature (the generator's 163 bones, inverse
+//!   bind matrices, four influences per vertex, per-bone rotation/translation animation).
 //! * [`keypoints_in`]: OpenPose JSON (BODY_25 + face 70 + hands 2 × 21) and CMU Panoptic
 //!   (`hdPose3d_stage1_coco19`, `hdFace3d`, `hdHand3d`) → TC-127 [`KeypointsFile`] targets,
 //!   with the layout detected from the JSON keys (mapping tables in `docs/formats-interchange.md`).
@@ -22,6 +24,7 @@ pub mod error;
 pub mod glb;
 pub mod keypoints_in;
 pub mod sequence;
+pub mod skinned;
 pub mod viewer;
 
 pub use error::{InterchangeError, Result};
