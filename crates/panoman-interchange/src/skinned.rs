@@ -403,3 +403,59 @@ pub fn from_identity(
     };
     Ok((arm, mesh))
 }
+
+/// The `*.params.json` files of a folder (what `panoman track --baseline lbs` writes, one per
+/// frame) in byte order of their names.
+///
+/// # Errors
+/// The folder cannot be listed or holds no parameter files.
+pub fn params_files(dir: &std::path::Path) -> Result<Vec<std::path::PathBuf>> {
+    let entries = std::fs::read_dir(dir).map_err(|e| InterchangeError::io(dir, e))?;
+    let mut files = Vec::new();
+    for e in entries {
+        let p = e.map_err(|e| InterchangeError::io(dir, e))?.path();
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        if name.ends_with(".params.json") && !name.starts_with('.') && p.is_file() {
+            files.push(p);
+        }
+    }
+    files.sort_by(|a, b| a.file_name().cmp(&b.file_name()));
+    if files.is_empty() {
+        return Err(InterchangeError::format(
+            dir,
+            "no *.params.json frames in this folder",
+        ));
+    }
+    Ok(files)
+}
+
+/// A skinned GLB of a sequence of generator parameters (e.g. the LBS baseline's per-frame
+/// fits): the armature and mesh of the first frame's identity, each frame's pose applied to
+/// it at `fps`. Later frames' shapes are not used (a skinned armature has one identity);
+/// the second value counts the frames whose shape differs from the first.
+///
+/// # Errors
+/// No frames, a pose that does not fit the rig, or the errors of [`skinned_glb`].
+pub fn lbs_sequence_glb(
+    generator: &panoman_human::generator::Generator,
+    frames: &[panoman_human::params::GeneratorParams],
+    fps: f64,
+) -> Result<(Vec<u8>, usize)> {
+    let first = frames
+        .first()
+        .ok_or_else(|| InterchangeError::Invalid("no frames to export".into()))?;
+    let id = generator.identity(&first.shape)?;
+    let (arm, mesh) = from_identity(&id)?;
+    let mut worlds = Vec::with_capacity(frames.len());
+    for (f, p) in frames.iter().enumerate() {
+        p.pose
+            .validate(generator.bone_names())
+            .map_err(|w| InterchangeError::Invalid(format!("frame {f}: {w}")))?;
+        worlds.push(id.pose(&p.pose).world);
+    }
+    let differing = frames.iter().filter(|p| p.shape != first.shape).count();
+    Ok((skinned_glb(&arm, &mesh, &worlds, fps)?, differing))
+}

@@ -227,3 +227,51 @@ fn gltf_skinning_of_the_file_reproduces_the_rig() {
     }
     assert!(checked > 3000, "too few vertices checked: {checked}");
 }
+
+#[test]
+fn lbs_track_folder_exports_as_one_skinned_clip() {
+    use panoman_human::params::GeneratorParams;
+    let g = Generator::load_default().unwrap();
+    let dir = common::scratch("skinned_lbs_folder");
+    let names = g.bone_names();
+    let elbow = names.iter().position(|b| b == "lowerarm01.L").unwrap();
+    for f in 0..3 {
+        let mut e = vec![[0.0; 3]; names.len()];
+        e[elbow] = [30.0 * f as f64, 0.0, 0.0];
+        let p = GeneratorParams {
+            shape: ShapeParams::default(),
+            pose: PoseParams {
+                euler_deg: e,
+                ..Default::default()
+            },
+        };
+        std::fs::write(
+            dir.join(format!("frame_{f:03}.params.json")),
+            p.to_json(names).to_string(),
+        )
+        .unwrap();
+    }
+    std::fs::write(dir.join("summary.json"), "{}").unwrap();
+    let files = skinned::params_files(&dir).unwrap();
+    assert_eq!(files.len(), 3);
+    let frames: Vec<GeneratorParams> = files.iter().map(|p| g.read_params(p).unwrap()).collect();
+    assert_eq!(frames[2].pose.euler_deg[elbow][0], 60.0);
+    let (glb, differing) = skinned::lbs_sequence_glb(&g, &frames, 10.0).unwrap();
+    assert_eq!(differing, 0);
+    let (doc, _) = split_glb(&glb).unwrap();
+    assert_eq!(
+        doc["skins"][0]["joints"].as_array().unwrap().len(),
+        names.len()
+    );
+    let input = doc["animations"][0]["samplers"][0]["input"]
+        .as_u64()
+        .unwrap() as usize;
+    assert_eq!(doc["accessors"][input]["count"], 3);
+    assert!((doc["accessors"][input]["max"][0].as_f64().unwrap() - 0.2).abs() < 1e-6);
+    let empty = common::scratch("skinned_lbs_empty");
+    let e = skinned::params_files(&empty).unwrap_err().to_string();
+    assert!(
+        e.contains("skinned_lbs_empty") && e.contains("params.json"),
+        "{e}"
+    );
+}
