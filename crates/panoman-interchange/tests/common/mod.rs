@@ -102,7 +102,8 @@ pub fn node_ready(test: &str) -> bool {
 /// Runs `node tools/node/<script> args…`; returns (success, stdout, stderr).
 pub fn run_node(script: &str, args: &[&Path]) -> (bool, String, String) {
     let mut cmd = Command::new("node");
-    if script.contains("browser") {
+    if script.contains("browser") && node_major() < 22 {
+        // Node 20/21 have WebSocket behind this flag; 22 and later have it by default.
         cmd.arg("--experimental-websocket");
     }
     cmd.arg(node_tools().join(script));
@@ -113,4 +114,20 @@ pub fn run_node(script: &str, args: &[&Path]) -> (bool, String, String) {
         String::from_utf8_lossy(&out.stdout).into_owned(),
         String::from_utf8_lossy(&out.stderr).into_owned(),
     )
+}
+
+/// The major version of `node` on PATH (0 if it cannot be read).
+pub fn node_major() -> u32 {
+    Command::new("node")
+        .arg("--version")
+        .output()
+        .ok()
+        .and_then(|o| {
+            let v = String::from_utf8_lossy(&o.stdout)
+                .trim()
+                .trim_start_matches('v')
+                .to_string();
+            v.split('.').next().and_then(|m| m.parse().ok())
+        })
+        .unwrap_or(0)
 }
