@@ -102,10 +102,17 @@ pub enum Unit {
 impl Unit {
     /// Metres per unit.
     pub fn metres(self) -> f64 {
+        1.0 / self.per_metre()
+    }
+
+    /// Units per metre (1, 100, 1000). Coordinates are converted by dividing by it, which is
+    /// correctly rounded: a value written as `x · 100` converts back to `x` far more often
+    /// than with a multiplication by 0.01.
+    pub fn per_metre(self) -> f64 {
         match self {
             Unit::Metre => 1.0,
-            Unit::Centimetre => 0.01,
-            Unit::Millimetre => 0.001,
+            Unit::Centimetre => 100.0,
+            Unit::Millimetre => 1000.0,
         }
     }
 }
@@ -256,7 +263,7 @@ pub fn parse_keypoints(text: &str, path: &Path, options: &ImportOptions) -> Resu
     let fmt = |w: String| InterchangeError::format(path, w);
     let mut acc = Acc {
         out: KeypointsFile::default(),
-        scale: options.unit.metres(),
+        per_metre: options.unit.per_metre(),
     };
     match layout {
         Layout::Tc127 => return KeypointsFile::parse(text).map_err(fmt),
@@ -293,10 +300,10 @@ pub fn parse_keypoints(text: &str, path: &Path, options: &ImportOptions) -> Resu
     Ok(acc.out)
 }
 
-/// The collected targets and the unit scale.
+/// The collected targets and the unit (units per metre).
 struct Acc {
     out: KeypointsFile,
-    scale: f64,
+    per_metre: f64,
 }
 
 impl Acc {
@@ -320,14 +327,10 @@ impl Acc {
         if c == 0.0 {
             return Ok(());
         }
-        self.out.points.insert(
-            t,
-            [
-                xyz[0] * self.scale,
-                xyz[1] * self.scale,
-                xyz[2] * self.scale,
-            ],
-        );
+        let m = self.per_metre;
+        self.out
+            .points
+            .insert(t, [xyz[0] / m, xyz[1] / m, xyz[2] / m]);
         self.out.weights.insert(t, c);
         Ok(())
     }

@@ -10,6 +10,7 @@ use panoman_fit::{
 };
 use panoman_human::ik::{IkConfig, IkResult, IkState};
 use panoman_human::keypoints::KeypointsFile;
+use panoman_interchange::keypoints_in::{ImportOptions, KeypointFormat, Unit};
 use panoman_mesh::{TriMesh, io};
 use panoman_model::model::{PanoManModel, Params};
 use serde_json::json;
@@ -38,9 +39,15 @@ pub struct FitArgs {
     /// Model file.
     #[arg(long)]
     pub model: PathBuf,
-    /// Target keypoints (any subset of TC-127, metres).
+    /// Target keypoints (any subset of TC-127, metres), or OpenPose / CMU Panoptic JSON.
     #[arg(long)]
     pub keypoints: PathBuf,
+    /// Layout of the keypoint files: tc127, openpose or panoptic (default: detected).
+    #[arg(long)]
+    pub keypoints_format: Option<KeypointFormat>,
+    /// Unit of OpenPose / Panoptic coordinates: m, cm or mm.
+    #[arg(long, default_value = "cm")]
+    pub keypoints_unit: Unit,
     /// A point cloud (PLY or OBJ vertices, metres) fitted by ICP after the keypoints.
     #[arg(long)]
     pub points: Option<PathBuf>,
@@ -90,6 +97,12 @@ pub struct TrackArgs {
     /// Directory of keypoint files (*.json), one per frame.
     #[arg(long)]
     pub frames: PathBuf,
+    /// Layout of the keypoint files: tc127, openpose or panoptic (default: detected).
+    #[arg(long)]
+    pub keypoints_format: Option<KeypointFormat>,
+    /// Unit of OpenPose / Panoptic coordinates: m, cm or mm.
+    #[arg(long, default_value = "cm")]
+    pub keypoints_unit: Unit,
     /// Output directory.
     #[arg(long)]
     pub out: PathBuf,
@@ -105,8 +118,20 @@ pub struct TrackArgs {
     pub assets: Option<PathBuf>,
 }
 
-fn read_keypoints(path: &Path) -> Result<KeypointsFile> {
-    Ok(KeypointsFile::read(path)?)
+/// Keypoints of any supported layout (TC-127, OpenPose, CMU Panoptic; `panoman-interchange`).
+fn read_keypoints(
+    path: &Path,
+    format: Option<KeypointFormat>,
+    unit: Unit,
+) -> Result<KeypointsFile> {
+    let options = ImportOptions {
+        unit,
+        format,
+        person: 0,
+    };
+    Ok(panoman_interchange::keypoints_in::read_keypoints(
+        path, &options,
+    )?)
 }
 
 fn read_handles(path: &Path, model: &PanoManModel) -> Result<Vec<VertexHandle>> {
@@ -189,7 +214,7 @@ fn write_json(path: &Path, v: &serde_json::Value) -> Result<()> {
 pub fn run(a: FitArgs) -> Result<()> {
     let t_setup = Instant::now();
     let model = PanoManModel::load(&a.model)?;
-    let kp = read_keypoints(&a.keypoints)?;
+    let kp = read_keypoints(&a.keypoints, a.keypoints_format, a.keypoints_unit)?;
     let mut c = Constraints {
         keypoints: kp.clone(),
         ..Default::default()
@@ -327,7 +352,7 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
     }
     let kps: Vec<KeypointsFile> = frames
         .iter()
-        .map(|p| read_keypoints(p))
+        .map(|p| read_keypoints(p, a.keypoints_format, a.keypoints_unit))
         .collect::<Result<_>>()?;
     let assets = crate::util::open_assets(a.assets.as_deref())?;
     let rig = Rig::load(&assets, &model)?;
