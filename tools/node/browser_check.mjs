@@ -108,12 +108,26 @@ for (let i = 0; i < pa.length; i += 4) {
   if (Math.abs(pa[i] - bg[0]) + Math.abs(pa[i + 1] - bg[1]) + Math.abs(pa[i + 2] - bg[2]) > 24) filled++;
   if (Math.abs(pa[i] - pb[i]) + Math.abs(pa[i + 1] - pb[i + 1]) + Math.abs(pa[i + 2] - pb[i + 2]) > 24) changed++;
 }
+// The keypoint toggle: hiding the markers must change the image when there are markers.
+const hasMarkers = await evaluate("!document.getElementById('markersBox').classList.contains('hidden')");
+let markerToggleChangedFraction = null;
+if (hasMarkers) {
+  await evaluate('window.panomanViewer.setMarkers(false)');
+  const pc = decode(await evaluate('window.panomanViewer.pixels()'));
+  await evaluate('window.panomanViewer.setMarkers(true)');
+  const pd = decode(await evaluate('window.panomanViewer.pixels()'));
+  let m = 0;
+  for (let i = 0; i < pc.length; i += 4) {
+    if (Math.abs(pc[i] - pd[i]) + Math.abs(pc[i + 1] - pd[i + 1]) + Math.abs(pc[i + 2] - pd[i + 2]) > 24) m++;
+  }
+  markerToggleChangedFraction = m / total;
+}
 const shotData = await s('Page.captureScreenshot', { format: 'png' });
 writeFileSync(shot, Buffer.from(shotData.data, 'base64'));
 const frameShown = await evaluate('window.panomanViewer.frame()');
 const result = {
   page, screenshot: shot, width: a.width, height: a.height, nFrames: n, scrubbedTo: mid, frameShown,
-  nonBlankFraction: filled / total, scrubChangedFraction: changed / total, consoleErrors: problems,
+  nonBlankFraction: filled / total, scrubChangedFraction: changed / total, markerToggleChangedFraction, consoleErrors: problems,
 };
 console.log(JSON.stringify(result));
 clearTimeout(guard);
@@ -122,5 +136,5 @@ const exited = new Promise((r) => browser.once('exit', r));
 browser.kill('SIGKILL');
 await exited;
 try { rmSync(profile, { recursive: true, force: true, maxRetries: 5 }); } catch (e) { console.error(`leaving ${profile}: ${e.message}`); }
-const ok = problems.length === 0 && result.nonBlankFraction > 0.01 && (n < 2 || result.scrubChangedFraction > 0.002) && frameShown === (n > 1 ? mid : 0);
+const ok = problems.length === 0 && (!hasMarkers || markerToggleChangedFraction > 0) && result.nonBlankFraction > 0.01 && (n < 2 || result.scrubChangedFraction > 0.002) && frameShown === (n > 1 ? mid : 0);
 process.exit(ok ? 0 : 1);

@@ -115,6 +115,10 @@ fn viewer_renders_and_scrubs_in_headless_chromium() {
         "scrubbing did not change the image: {r}"
     );
     assert_eq!(r["frameShown"], 6, "{r}");
+    assert!(
+        r["markerToggleChangedFraction"].as_f64().unwrap() > 0.0,
+        "the keypoint toggle changed nothing: {r}"
+    );
     assert!(ok, "browser check failed: {out} {err}");
     let png = std::fs::read(&shot).unwrap();
     assert_eq!(&png[1..4], b"PNG");
