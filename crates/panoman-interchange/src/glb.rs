@@ -282,7 +282,7 @@ pub fn export_glb(
         doc["animations"] =
             json!([{"name": "sequence", "channels": channels, "samplers": samplers}]);
     }
-    Ok(glb_container(&doc, &b.bin))
+    glb_container(&doc, &b.bin)
 }
 
 /// Rejects inputs that would give an invalid file.
@@ -565,7 +565,7 @@ impl Builder {
 
 /// The GLB container: 12-byte header, the JSON chunk (padded with spaces) and the BIN chunk
 /// (padded with zeros), both 4-byte aligned.
-pub(crate) fn glb_container(doc: &Value, bin: &[u8]) -> Vec<u8> {
+pub(crate) fn glb_container(doc: &Value, bin: &[u8]) -> Result<Vec<u8>> {
     let mut json = serde_json::to_vec(doc).expect("serializing a serde_json::Value cannot fail");
     while !json.len().is_multiple_of(4) {
         json.push(b' ');
@@ -575,6 +575,11 @@ pub(crate) fn glb_container(doc: &Value, bin: &[u8]) -> Vec<u8> {
         bin.push(0);
     }
     let total = 12 + 8 + json.len() + 8 + bin.len();
+    if total > u32::MAX as usize {
+        return Err(InterchangeError::Invalid(format!(
+            "the GLB would be {total} bytes; the format's limit is 4 GiB (export fewer frames)"
+        )));
+    }
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(b"glTF");
     out.extend_from_slice(&2u32.to_le_bytes());
@@ -585,7 +590,7 @@ pub(crate) fn glb_container(doc: &Value, bin: &[u8]) -> Vec<u8> {
     out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
     out.extend_from_slice(b"BIN\0");
     out.extend_from_slice(&bin);
-    out
+    Ok(out)
 }
 
 /// The JSON chunk and the BIN chunk of a GLB file (for tests and the viewer).

@@ -170,7 +170,7 @@ pub fn skinned_glb(
         "bufferViews": b.views,
         "buffers": [{"byteLength": b.bin.len()}],
     });
-    Ok(glb_container(&doc, &b.bin))
+    glb_container(&doc, &b.bin)
 }
 
 /// Rejects inputs that would give an invalid file.
