@@ -95,7 +95,7 @@ pub struct GlbOptions {
     pub interpolation: Interpolation,
     /// Optional per-vertex colour (linear RGB in [0, 1]) written as `COLOR_0`.
     pub colors: Option<Vec<[f32; 3]>>,
-    /// Edge half-length of the marker octahedra (metres). Default 0.01.
+    /// Size of the marker octahedra, centre to vertex (metres). Default 0.01.
     pub marker_radius_m: f64,
     /// Name of the mesh and its node. Default `body`.
     pub name: String,

@@ -20,6 +20,8 @@
 //!
 //! [`KeypointsFile`]: panoman_human::keypoints::KeypointsFile
 
+#![warn(missing_docs)]
+
 pub mod error;
 pub mod glb;
 pub mod keypoints_in;
