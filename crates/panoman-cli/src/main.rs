@@ -59,6 +59,10 @@ enum Command {
     Eval(commands::eval::EvalArgs),
     /// Store the LBS rig in an older model file (so it fits without the asset tree).
     EmbedRig(commands::embed_rig::EmbedRigArgs),
+    /// Export a mesh or a folder of per-frame meshes as glTF 2.0 binary (.glb).
+    Export(commands::export::ExportArgs),
+    /// Write one self-contained offline HTML viewer of a .glb, a mesh or a mesh folder.
+    View(commands::view::ViewArgs),
 }
 
 fn main() -> ExitCode {
@@ -89,6 +93,8 @@ fn main() -> ExitCode {
         Command::Track(a) => commands::fit::run_track(a),
         Command::Eval(a) => commands::eval::run(a),
         Command::EmbedRig(a) => commands::embed_rig::run(a),
+        Command::Export(a) => commands::export::run(a),
+        Command::View(a) => commands::view::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -8,6 +8,7 @@ use panoman::{
     read_handles, read_points,
 };
 use panoman_fit::fit::FitOptions;
+use panoman_interchange::keypoints_in::{ImportOptions, KeypointFormat, Unit};
 use panoman_mesh::{TriMesh, io};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -35,9 +36,15 @@ pub struct FitArgs {
     /// Model file.
     #[arg(long)]
     pub model: PathBuf,
-    /// Target keypoints (any subset of TC-127, metres).
+    /// Target keypoints (any subset of TC-127, metres), or OpenPose / CMU Panoptic JSON.
     #[arg(long)]
     pub keypoints: PathBuf,
+    /// Layout of the keypoint files: tc127, openpose or panoptic (default: detected).
+    #[arg(long)]
+    pub keypoints_format: Option<KeypointFormat>,
+    /// Unit of OpenPose / Panoptic coordinates: m, cm or mm.
+    #[arg(long, default_value = "cm")]
+    pub keypoints_unit: Unit,
     /// A point cloud (PLY or OBJ vertices, metres) fitted by ICP after the keypoints.
     #[arg(long)]
     pub points: Option<PathBuf>,
@@ -87,6 +94,12 @@ pub struct TrackArgs {
     /// Directory of keypoint files (*.json), one per frame.
     #[arg(long)]
     pub frames: PathBuf,
+    /// Layout of the keypoint files: tc127, openpose or panoptic (default: detected).
+    #[arg(long)]
+    pub keypoints_format: Option<KeypointFormat>,
+    /// Unit of OpenPose / Panoptic coordinates: m, cm or mm.
+    #[arg(long, default_value = "cm")]
+    pub keypoints_unit: Unit,
     /// Output directory.
     #[arg(long)]
     pub out: PathBuf,
@@ -100,6 +113,19 @@ pub struct TrackArgs {
     /// Asset directory.
     #[arg(long)]
     pub assets: Option<PathBuf>,
+}
+
+/// Keypoints of any supported layout (TC-127, OpenPose, CMU Panoptic; `panoman-interchange`).
+fn read_keypoints(path: &Path, format: Option<KeypointFormat>, unit: Unit) -> Result<Targets> {
+    let options = ImportOptions {
+        unit,
+        format,
+        person: 0,
+    };
+    Ok(Targets {
+        keypoints: panoman_interchange::keypoints_in::read_keypoints(path, &options)?,
+        ..Default::default()
+    })
 }
 
 fn write_json<T: serde::Serialize>(path: &Path, v: &T) -> Result<()> {
@@ -159,7 +185,7 @@ fn write_params(path: &Path, out: &FitOutput, fitter: &Fitter) -> Result<()> {
 pub fn run(a: FitArgs) -> Result<()> {
     let t_setup = Instant::now();
     let model = Model::load(&a.model)?;
-    let mut targets = Targets::read_keypoints(&a.keypoints)?;
+    let mut targets = read_keypoints(&a.keypoints, a.keypoints_format, a.keypoints_unit)?;
     if let Some(h) = &a.handles {
         targets.handles = read_handles(h, model.n_vertices())?;
     }
@@ -221,8 +247,8 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
     }
     let targets: Vec<Targets> = frames
         .iter()
-        .map(|p| Targets::read_keypoints(p))
-        .collect::<panoman::Result<_>>()?;
+        .map(|p| read_keypoints(p, a.keypoints_format, a.keypoints_unit))
+        .collect::<Result<_>>()?;
     let req = FitRequest {
         method: if a.baseline.is_some() {
             Method::Lbs
