@@ -68,6 +68,15 @@ impl Generator {
         Ok(self.map.map(topology, &posed.vertices))
     }
 
+    /// Parses generator parameters from their JSON layout (`docs/formats.md`: phenotype, face
+    /// units, local changes, per-bone Euler XYZ angles in degrees, root rotation/translation).
+    ///
+    /// # Errors
+    /// Malformed JSON, unknown names, values out of range.
+    pub fn parse_params(&self, json: &str) -> Result<GeneratorParams> {
+        Ok(self.generator.parse_params(json)?)
+    }
+
     /// The faces of `topology`.
     pub fn faces(&self, topology: OutputTopology) -> &[[u32; 3]] {
         self.map.faces(topology)

@@ -64,6 +64,7 @@ pub use generator::Generator;
 pub use model::{BlockInfo, BlockName, Correction, Model};
 pub use panoman_fit::fit::{GroupResidual, StageReport, VertexHandle};
 pub use panoman_human::keypoints::{KeypointsFile, keypoint_names};
+pub use panoman_human::outputs::OutputTopology;
 pub use panoman_human::params::GeneratorParams;
 pub use panoman_mesh::geom::V3;
 pub use panoman_model::model::Params;

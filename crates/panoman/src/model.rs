@@ -179,6 +179,27 @@ impl Model {
         &self.inner().topology_name
     }
 
+    /// The generator topology of the model's template (for [`crate::Generator::generate`]).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] for a model on another topology than `full` or `small`.
+    pub fn output_topology(&self) -> Result<panoman_human::outputs::OutputTopology> {
+        use panoman_human::outputs::OutputTopology;
+        match self.topology_name() {
+            "full" => Ok(OutputTopology::Full),
+            "small" => Ok(OutputTopology::Small),
+            other => Err(Error::Invalid(format!(
+                "the model's topology `{other}` is not a generator topology"
+            ))),
+        }
+    }
+
+    /// The rest shape `B_S(α)` (PanoMan Eq. 2: mean + Σ αᵢ σᵢ uᵢ, `(V, 3)` metres; missing
+    /// entries of α count as 0).
+    pub fn rest_shape(&self, alpha: &[f64]) -> Vec<V3> {
+        self.inner().rest_shape(alpha)
+    }
+
     /// Number of shape coefficients α.
     pub fn n_shape(&self) -> usize {
         self.inner().shape.n_components()

@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# The test suite (what CI runs, via .ci/run): formatting, every crate's tests and doc tests,
+# then the numbered library examples on the small example model.
+# The interchange tests use node + npm (pinned tools in tools/node) and Debian's chromium; they
+# are skipped with a note unless PANOMAN_NODE_TESTS=1 (which .ci/run sets).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+cargo fmt --all --check
+if command -v npm >/dev/null 2>&1; then
+    npm ci --prefix tools/node --no-audit --no-fund --silent
+fi
+cargo test --release --workspace
+for example in 01_pose 02_fit_keypoints 03_track 04_fit_scan; do
+    echo "example $example:"
+    cargo run --release --quiet -p panoman --example "$example"
+done
