@@ -31,7 +31,12 @@ pub enum Baseline {
     Writes DIR/mesh.obj, DIR/params.json (α, β and the rigid motion; the rig's parameters\n\
     for --baseline lbs) and DIR/report.json (time per stage, iterations, keypoint residual\n\
     per group in mm). Handles: {\"handles\": [{\"vertex\": 123, \"position\": [x, y, z],\n\
-    \"weight\": 1}]}. --params fixes α and the β blocks it gives (parameter edits).")]
+    \"weight\": 1}]}. --params fixes α and the β blocks it gives (parameter edits).\n\n\
+    Keypoints (TC-127 JSON): {\"keypoints\": {\"l_wrist\": [x, y, z], ...}, \"weights\": {\"l_wrist\": 0.5}}\n\
+    in metres, any subset of the 127 names (15 body, face_00..face_69 = iBUG-68 + 2 pupils, 2x21\n\
+    hand joints; full list and order in docs/formats.md §3); weights optional (default 1).\n\
+    params.json: alpha (shape), beta per block (body_l, face_l, hands_l, body_a, face_a,\n\
+    hands_a), translation (metres), rotation (axis-angle vector, radians).")]
 pub struct FitArgs {
     /// Model file.
     #[arg(long)]

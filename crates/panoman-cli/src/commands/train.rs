@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 /// Arguments of `panoman train`.
 #[derive(Args, Debug)]
 #[command(
-    after_help = "Examples:\n  panoman synth --preset small --out H && panoman train --data H --preset small --out M.safetensors\n  panoman train --data H --out M.safetensors   # default preset: 10 shape, 250/100/50 components\n\nAlso writes <out>.report.json and the Fig. 7 curves <out>.fig7.csv / <out>.fig7.png."
+    after_help = "Examples:\n  panoman synth --preset small --out H && panoman train --data H --preset small --out M.safetensors\n  panoman train --data H --out M.safetensors   # default preset: 10 shape, 250/100/50 components\n\nBlock sizes: K components per part (--components BODY,FACE,HANDS, default 250,100,50) give\nK + 1 β coefficients per block (251/101/51): coefficient 0 scales the part's mean.\n\nAlso writes <out>.report.json and the Fig. 7 curves <out>.fig7.csv / <out>.fig7.png."
 )]
 pub struct TrainArgs {
     /// Dataset directory written by `panoman synth` (or a user's own, same layout).
