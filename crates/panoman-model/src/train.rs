@@ -29,7 +29,7 @@ use panoman_mesh::align::rigid_align;
 use panoman_mesh::geom::{V3, norm, sub};
 use panoman_mesh::{RestGeometry, Rla, Topology};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::ops::ControlFlow;
 use std::sync::Arc;
 use std::time::Instant;
@@ -149,7 +149,7 @@ pub struct CurvePoint {
 }
 
 /// Representation error of one part on held-out rows.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PartError {
     /// Rows evaluated.
     pub rows: usize,
@@ -171,6 +171,40 @@ pub struct PartError {
     /// Mean (mm) when the whole mesh is aligned at once instead of each part on its own (for
     /// face and hands this adds the drift of the body chain to the part's error).
     pub mean_mm_whole_alignment: f64,
+}
+
+/// Held-out representation error per part ([`evaluate_representation`]); serializes as
+/// `{"body": PartError, "face": …, "hands": …}`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RepresentationError {
+    /// Body poses, whole mesh.
+    pub body: PartError,
+    /// Expressions, the face aligned on itself.
+    pub face: PartError,
+    /// Gestures, each hand aligned on itself.
+    pub hands: PartError,
+}
+
+/// Wall times of [`evaluate`] (s).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EvaluationTimings {
+    /// [`evaluate_representation`].
+    pub evaluation_s: f64,
+    /// [`component_curves`].
+    pub curves_s: f64,
+}
+
+/// What [`evaluate`] measures (the `representation_error` and timing entries of the training
+/// report).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Evaluation {
+    /// Held-out representation error per part.
+    pub representation_error: RepresentationError,
+    /// Wall times.
+    pub timings: EvaluationTimings,
+    /// The Fig. 7 curves.
+    #[serde(skip)]
+    pub curves: Vec<CurvePoint>,
 }
 
 /// Result of training.
@@ -642,14 +676,14 @@ pub fn train(
 
 /// Evaluation after training (paper §6.1): the held-out representation error
 /// ([`evaluate_representation`]) and the Fig. 7 curves ([`component_curves`]); returns the
-/// report section and the curve points.
+/// errors, the curve points and the timings.
 pub fn evaluate(
     model: &Arc<PanoManModel>,
     ds: &Dataset,
     regions: &Regions,
     cfg: &TrainConfig,
     progress: &mut dyn FnMut(&str),
-) -> Result<(serde_json::Value, Vec<CurvePoint>)> {
+) -> Result<Evaluation> {
     progress("representation error (held-out identities)");
     let t = Instant::now();
     let eval = evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind)?;
@@ -662,11 +696,14 @@ pub fn evaluate(
         cfg.eval_rows_per_kind.min(12)
     };
     let curves = component_curves(model, ds, regions, curve_rows)?;
-    let report = serde_json::json!({
-        "representation_error": eval,
-        "timings": {"evaluation_s": eval_s, "curves_s": t.elapsed().as_secs_f64()},
-    });
-    Ok((report, curves))
+    Ok(Evaluation {
+        representation_error: eval,
+        timings: EvaluationTimings {
+            evaluation_s: eval_s,
+            curves_s: t.elapsed().as_secs_f64(),
+        },
+        curves,
+    })
 }
 
 fn is_body_bone(name: &str) -> bool {
@@ -818,10 +855,14 @@ pub fn evaluate_representation(
     ds: &Dataset,
     regions: &Regions,
     rows_per_kind: usize,
-) -> Result<serde_json::Value> {
+) -> Result<RepresentationError> {
     let mut ev = Evaluator::new(model.clone())?;
-    let mut out = serde_json::Map::new();
-    for (kind, name) in [(1u8, "body"), (2, "face"), (3, "hands")] {
+    let mut out = RepresentationError::default();
+    for (kind, slot) in [
+        (1u8, &mut out.body),
+        (2, &mut out.face),
+        (3, &mut out.hands),
+    ] {
         let rows = held_out_rows(ds, kind, rows_per_kind);
         let region = region_groups(regions, kind);
         let mut pe = PartError {
@@ -859,9 +900,9 @@ pub fn evaluate_representation(
         pe.max_mm_corrected *= 1e3;
         pe.mean_mm_exact_rest *= 1e3 / n;
         pe.max_mm_exact_rest *= 1e3;
-        out.insert(name.into(), serde_json::to_value(pe).expect("serializes"));
+        *slot = pe;
     }
-    Ok(serde_json::Value::Object(out))
+    Ok(out)
 }
 
 /// The paper's Fig. 7 on held-out rows: for each part and k, the part's RL and RA blocks are

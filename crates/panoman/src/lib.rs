@@ -51,6 +51,7 @@
 #![warn(missing_docs)]
 
 pub mod error;
+pub mod eval;
 pub mod fitter;
 pub mod generator;
 pub mod model;

@@ -1,0 +1,18 @@
+//! Representation error versus number of components (Fig. 7) and the correction MLP (Fig. 18).
+use panoman_model::train::{
+    CurvePoint, RepresentationError, component_curves, evaluate_representation,
+};
+
+use super::{Bench, EvalPreset};
+use crate::error::Result;
+
+/// The held-out representation error and the component curves.
+pub(crate) fn run(
+    b: &Bench,
+    preset: &EvalPreset,
+) -> Result<(RepresentationError, Vec<CurvePoint>)> {
+    let pm = b.model.inner();
+    let repr = evaluate_representation(pm, &b.ds, &b.regions, preset.repr_rows)?;
+    let curves = component_curves(pm, &b.ds, &b.regions, preset.curve_rows)?;
+    Ok((repr, curves))
+}
