@@ -254,7 +254,10 @@ pub fn part_columns(regions: &Regions, margin: usize) -> [Vec<u32>; 3] {
     [body, face, hands]
 }
 
-/// Trains a model (see the module docs). `progress(stage)` is called at each stage start.
+/// Trains a model (see the module docs). `progress(stage)` is called at each stage start,
+/// and within the long stages (each SPLOCS outer iteration, each MLP epoch) with
+/// `"{stage} ({detail})"`: a message that extends the current stage's name followed by ` (`
+/// is a detail of that stage, not a new stage.
 pub fn train(
     inputs: &TrainInputs<'_>,
     cfg: &TrainConfig,
@@ -392,7 +395,13 @@ pub fn train(
                 SplocsOptions::new(cfg.components[part].min(n.saturating_sub(1)).max(1), bounds);
             opts.max_outer_iters = cfg.splocs_outer_iters;
             opts.lambda = cfg.splocs_lambda * (n as f64 / 100.0).sqrt().max(1.0);
-            let dec = splocs::fit_col_major(data, n, &dists, &opts, |_| {})?;
+            let iters = opts.max_outer_iters;
+            let dec = splocs::fit_col_major(data, n, &dists, &opts, |rec| {
+                let it = rec.iteration + 1;
+                progress(&format!(
+                    "decomposition {name} (outer iteration {it}/{iters})"
+                ));
+            })?;
             dec_report.insert(
                 name.into(),
                 serde_json::json!({
@@ -541,7 +550,11 @@ pub fn train(
         } else {
             None
         };
-        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |_| {
+        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |e| {
+            progress(&format!(
+                "correction MLP (epoch {}/{})",
+                e.epoch, cfg.correction_epochs
+            ));
             ControlFlow::Continue(())
         })?;
         timings.insert("correction_s".into(), t.elapsed().as_secs_f64().into());
@@ -616,7 +629,11 @@ pub fn train(
         } else {
             None
         };
-        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |_| {
+        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |e| {
+            progress(&format!(
+                "motion MLP θ→β (epoch {}/{})",
+                e.epoch, cfg.motion_epochs
+            ));
             ControlFlow::Continue(())
         })?;
         timings.insert("motion_s".into(), t.elapsed().as_secs_f64().into());

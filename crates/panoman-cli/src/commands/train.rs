@@ -65,10 +65,19 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let assets = crate::util::open_assets(a.assets.as_deref())?;
     let pb = indicatif::ProgressBar::new_spinner();
     pb.enable_steady_tick(Duration::from_millis(150));
-    // One progress reporter for training and evaluation: prints each finished stage's time.
+    // One progress reporter for training and evaluation: prints each finished stage's time;
+    // a message `"{stage} ({detail})"` of the current stage only updates the spinner.
     let mut stage_start = Instant::now();
     let mut last = String::new();
     let mut stage = |name: &str| {
+        let detail = !last.is_empty()
+            && name
+                .strip_prefix(last.as_str())
+                .is_some_and(|rest| rest.starts_with(" ("));
+        if detail {
+            pb.set_message(name.to_string());
+            return;
+        }
         if !last.is_empty() {
             pb.suspend(|| eprintln!("  {last}: {:.1} s", stage_start.elapsed().as_secs_f64()));
         }
