@@ -701,18 +701,24 @@ pub fn evaluate(
     cfg: &TrainConfig,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Evaluation> {
-    progress("representation error (held-out identities)");
+    let stage = "representation error (held-out identities)";
+    progress(stage);
     let t = Instant::now();
-    let eval = evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind)?;
+    let eval = evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind, &mut |d| {
+        progress(&format!("{stage} ({d})"))
+    })?;
     let eval_s = t.elapsed().as_secs_f64();
-    progress("component curves (Fig. 7)");
+    let stage = "component curves (Fig. 7)";
+    progress(stage);
     let t = Instant::now();
     let curve_rows = if cfg.eval_rows_per_kind == 0 {
         0
     } else {
         cfg.eval_rows_per_kind.min(12)
     };
-    let curves = component_curves(model, ds, regions, curve_rows)?;
+    let curves = component_curves(model, ds, regions, curve_rows, &mut |d| {
+        progress(&format!("{stage} ({d})"))
+    })?;
     Ok(Evaluation {
         representation_error: eval,
         timings: EvaluationTimings {
@@ -866,19 +872,21 @@ fn region_errors(a: &[V3], b: &[V3], groups: &[Vec<u32>], whole: bool) -> (f64, 
 
 /// Representation error on held-out identities (see [`PartError`]): each held-out row is
 /// encoded (α from its identity's rest shape, β by least squares on its RL/RA), rebuilt with g,
-/// rigidly aligned to the row and compared on its region.
+/// rigidly aligned to the row and compared on its region. `progress(detail)` hears each row
+/// as it starts (`"body row 3/40"`).
 pub fn evaluate_representation(
     model: &Arc<PanoManModel>,
     ds: &Dataset,
     regions: &Regions,
     rows_per_kind: usize,
+    progress: &mut dyn FnMut(&str),
 ) -> Result<RepresentationError> {
     let mut ev = Evaluator::new(model.clone())?;
     let mut out = RepresentationError::default();
-    for (kind, slot) in [
-        (1u8, &mut out.body),
-        (2, &mut out.face),
-        (3, &mut out.hands),
+    for (kind, name, slot) in [
+        (1u8, "body", &mut out.body),
+        (2, "face", &mut out.face),
+        (3, "hands", &mut out.hands),
     ] {
         let rows = held_out_rows(ds, kind, rows_per_kind);
         let region = region_groups(regions, kind);
@@ -886,7 +894,8 @@ pub fn evaluate_representation(
             rows: rows.len(),
             ..Default::default()
         };
-        for &r in &rows {
+        for (i, &r) in rows.iter().enumerate() {
+            progress(&format!("{name} row {}/{}", i + 1, rows.len()));
             let mesh = row_vertices(ds, r)?;
             let rest = row_vertices(ds, ds.rest_of[r] as usize)?;
             let p = ev.encode(&mesh, Some(&rest), false)?;
@@ -924,12 +933,14 @@ pub fn evaluate_representation(
 
 /// The paper's Fig. 7 on held-out rows: for each part and k, the part's RL and RA blocks are
 /// truncated to their first k components (sorted by energy), the rows are encoded and rebuilt,
-/// and the RLA residual and mesh error on the part's region are recorded.
+/// and the RLA residual and mesh error on the part's region are recorded. `progress(detail)`
+/// hears each truncation as it starts (`"body k = 25 (5/11)"`).
 pub fn component_curves(
     model: &PanoManModel,
     ds: &Dataset,
     regions: &Regions,
     rows_per_kind: usize,
+    progress: &mut dyn FnMut(&str),
 ) -> Result<Vec<CurvePoint>> {
     let mut points = Vec::new();
     // Topology tables and g's factorizations are shared by every truncated model.
@@ -958,7 +969,9 @@ pub fn component_curves(
                 ))
             })
             .collect::<Result<_>>()?;
-        for k in ks {
+        let n_ks = ks.len();
+        for (i, k) in ks.into_iter().enumerate() {
+            progress(&format!("{name} k = {k} ({}/{n_ks})", i + 1));
             let mut m = model.clone();
             m.correction = None;
             for b in [part, part + 3] {

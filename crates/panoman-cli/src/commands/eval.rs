@@ -68,8 +68,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 pb.set_message(format!("eval: {name}"));
             }
             EvalProgress::Step { done, total } => {
-                pb.set_message(format!("eval: {experiment} ({done}/{total})"));
+                pb.set_message(format!("eval: {experiment} ({done}/{total} done)"));
             }
+            EvalProgress::Detail(what) => pb.set_message(format!("eval: {what}")),
         };
         let out = panoman::eval::run_all(&cfg, &assets, &mut on_progress);
         pb.finish_and_clear();

@@ -118,6 +118,8 @@ pub struct EvalConfig {
 pub enum EvalProgress<'a> {
     /// An experiment starts (its name).
     Experiment(&'a str),
+    /// What the current experiment is doing now (e.g. `representation error: body row 3/20`).
+    Detail(&'a str),
     /// `done` of `total` steps (fits, frames) of the current experiment are done.
     Step {
         /// Steps done.
@@ -261,7 +263,7 @@ pub fn run_all(
     progress(EvalProgress::Experiment(
         "representation error and component curves",
     ));
-    let (representation, curves) = representation::run(&b, preset)?;
+    let (representation, curves) = representation::run(&b, preset, progress)?;
 
     progress(EvalProgress::Experiment("fitting held-out people"));
     let held = fitting::run(&mut b, preset, cfg.seed, &cfg.data, progress)?;
