@@ -66,7 +66,12 @@ fn small_evaluation_reports_every_experiment_and_repeats_exactly() {
     assert_eq!(out.clip_frames.len(), 3);
     assert!(out.meshes.fit_example.is_some() && out.meshes.error_map.is_some());
     // Forearm renders at the preset's angles among 90°, 150°, 180°.
-    let angles: Vec<f64> = out.meshes.twist_forearm.iter().map(|(a, _)| *a).collect();
+    let angles: Vec<f64> = out
+        .meshes
+        .twist_forearm
+        .iter()
+        .map(|r| r.angle_deg)
+        .collect();
     assert_eq!(angles, [150.0, 180.0]);
     for e in [s.fit_held_out.exact.panoman, s.fit_held_out.exact.lbs] {
         assert!(e.all_mean.is_finite() && e.all_mean > 0.0 && e.all_mean < 100.0);

@@ -282,11 +282,12 @@ fn renders(dir: &Path, o: &EvalOutput) -> Result<()> {
     if let Some(t) = &o.meshes.fit_example {
         save_render(&dir.join("fit_example.png"), &plain(t), View::Front)?;
     }
-    for (ang, t) in &o.meshes.twist_forearm {
+    for r in &o.meshes.twist_forearm {
         // Order: the twisted target, the LBS fit, the PanoMan fit.
+        let t = &r.meshes;
         let m = [&t.truth, &t.lbs, &t.panoman].map(|x| (mesh(x), None));
         save_render(
-            &dir.join(format!("twist_forearm_{ang:.0}.png")),
+            &dir.join(format!("twist_forearm_{:.0}.png", r.angle_deg)),
             &m,
             View::Front,
         )?;

@@ -8,7 +8,7 @@ use panoman_human::keypoints::KeypointsFile;
 use serde::{Deserialize, Serialize};
 
 use super::fitting::StageTimes;
-use super::metrics::{PartErrors, mean_of, median_min_max, part_errors};
+use super::metrics::{PartErrors, mean_of, part_errors};
 use super::summary::{ClipSummary, MedianMinMax};
 use super::{Bench, EvalPreset, EvalProgress, MeshTriple};
 use crate::error::Result;
@@ -104,8 +104,7 @@ pub(crate) fn run(
             total: truths.len(),
         });
     }
-    let (median, min, max) = median_min_max(&warm_times);
-    let warm_s = MedianMinMax { max, median, min };
+    let warm_s = MedianMinMax::of(&warm_times);
     let pm: Vec<PartErrors> = frames.iter().map(|r| r.panoman).collect();
     let lbs: Vec<PartErrors> = frames.iter().map(|r| r.lbs).collect();
     Ok(ClipRun {

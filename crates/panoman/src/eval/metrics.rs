@@ -96,8 +96,8 @@ pub fn mean_of(xs: &[PartErrors]) -> PartErrors {
     m
 }
 
-/// (median, min, max) of a sample; NaN for an empty one.
-pub fn median_min_max(xs: &[f64]) -> (f64, f64, f64) {
+/// (median, min, max) of a sample; NaN for an empty one (see [`MedianMinMax::of`]).
+pub(crate) fn median_min_max(xs: &[f64]) -> (f64, f64, f64) {
     let mut v = xs.to_vec();
     v.sort_by(|a, b| a.total_cmp(b));
     let n = v.len();

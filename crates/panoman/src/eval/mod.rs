@@ -36,7 +36,7 @@ mod timing;
 mod twist;
 
 pub use clip::ClipFrame;
-pub use metrics::{PartErrors, mean_of, median_min_max};
+pub use metrics::{PartErrors, mean_of};
 pub use summary::*;
 
 /// The sizes of an evaluation.
@@ -140,6 +140,15 @@ pub struct MeshTriple {
     pub lbs: Vec<V3>,
 }
 
+/// One twist of the forearm: the twisted target, its LBS fit and PanoMan fit.
+#[derive(Clone, Debug)]
+pub struct TwistRender {
+    /// The twist (degrees).
+    pub angle_deg: f64,
+    /// The meshes.
+    pub meshes: MeshTriple,
+}
+
 /// The composite motion (Fig. 16): three fits and the composite of their blocks.
 #[derive(Clone, Debug)]
 pub struct CompositeMeshes {
@@ -157,7 +166,7 @@ pub struct EvalMeshes {
     /// The middle clip frame (the spatial error map, Fig. 21).
     pub error_map: Option<MeshTriple>,
     /// The forearm twisted by 90°, 150° and 180° (those of the preset's angles).
-    pub twist_forearm: Vec<(f64, MeshTriple)>,
+    pub twist_forearm: Vec<TwistRender>,
     /// The composite motion.
     pub composite: Option<CompositeMeshes>,
 }

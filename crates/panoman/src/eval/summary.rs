@@ -80,6 +80,15 @@ pub struct MedianMinMax {
     pub min: f64,
 }
 
+impl MedianMinMax {
+    /// The median, min and max of a sample (the median of an even count is the mean of the
+    /// middle two); NaN for an empty sample.
+    pub fn of(xs: &[f64]) -> MedianMinMax {
+        let (median, min, max) = super::metrics::median_min_max(xs);
+        MedianMinMax { max, median, min }
+    }
+}
+
 /// `fit_held_out`: held-out people fitted from their TC-127 keypoints (cold fits).
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct HeldOutFits {

@@ -12,7 +12,7 @@ use panoman_mesh::geom::V3;
 use panoman_mesh::measure::enclosed_volume;
 
 use super::summary::{TwistLimb, TwistRow, TwistSummary};
-use super::{Bench, EvalPreset, EvalProgress, MeshTriple};
+use super::{Bench, EvalPreset, EvalProgress, MeshTriple, TwistRender};
 use crate::error::{Error, Result};
 
 /// One limb of the twist study: the bone twisted (about its own y axis, the bone direction)
@@ -67,7 +67,7 @@ const RENDERED: [f64; 3] = [90.0, 150.0, 180.0];
 /// What the twist study gives the summary and the renders.
 pub(crate) struct TwistRun {
     pub(crate) summary: TwistSummary,
-    pub(crate) forearm: Vec<(f64, MeshTriple)>,
+    pub(crate) forearm: Vec<TwistRender>,
 }
 
 /// The rest person (default shape) of the study.
@@ -153,7 +153,10 @@ pub(crate) fn run(
             let (row, meshes) = twist_row(b, &p, &s, ang)?;
             rows.push(row);
             if limb.name == "forearm" && RENDERED.contains(&ang) {
-                out.forearm.push((ang, meshes));
+                out.forearm.push(TwistRender {
+                    angle_deg: ang,
+                    meshes,
+                });
             }
             progress(EvalProgress::Step {
                 done: i * preset.twist_angles.len() + j + 1,
