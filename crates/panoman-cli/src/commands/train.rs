@@ -65,10 +65,19 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let assets = crate::util::open_assets(a.assets.as_deref())?;
     let pb = indicatif::ProgressBar::new_spinner();
     pb.enable_steady_tick(Duration::from_millis(150));
-    // One progress reporter for training and evaluation: prints each finished stage's time.
+    // One progress reporter for training and evaluation: prints each finished stage's time;
+    // a message `"{stage} ({detail})"` of the current stage only updates the spinner.
     let mut stage_start = Instant::now();
     let mut last = String::new();
     let mut stage = |name: &str| {
+        let detail = !last.is_empty()
+            && name
+                .strip_prefix(last.as_str())
+                .is_some_and(|rest| rest.starts_with(" ("));
+        if detail {
+            pb.set_message(name.to_string());
+            return;
+        }
         if !last.is_empty() {
             pb.suspend(|| eprintln!("  {last}: {:.1} s", stage_start.elapsed().as_secs_f64()));
         }
@@ -84,20 +93,20 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let report_path = PathBuf::from(format!("{}.report.json", stem.display()));
     write_atomic(&report_path, serde_json::to_string_pretty(&out.report)?)?;
     let model = std::sync::Arc::new(out.model);
-    let (eval, curves) = evaluate(&model, &ds, &regions, &cfg, &mut stage)
+    let eval = evaluate(&model, &ds, &regions, &cfg, &mut stage)
         .with_context(|| a.data.display().to_string())?;
     stage("");
     pb.finish_and_clear();
     let mut report = out.report.clone();
-    report["representation_error"] = eval["representation_error"].clone();
-    report["timings"]["evaluation_s"] = eval["timings"]["evaluation_s"].clone();
-    report["timings"]["curves_s"] = eval["timings"]["curves_s"].clone();
+    report["representation_error"] = serde_json::to_value(&eval.representation_error)?;
+    report["timings"]["evaluation_s"] = eval.timings.evaluation_s.into();
+    report["timings"]["curves_s"] = eval.timings.curves_s.into();
     write_atomic(&report_path, &serde_json::to_string_pretty(&report)?)?;
     // Fig. 7: CSV + PNG.
     let csv_path = PathBuf::from(format!("{}.fig7.csv", stem.display()));
     let png_path = PathBuf::from(format!("{}.fig7.png", stem.display()));
-    component_curves_files(&csv_path, &png_path, &curves)?;
-    let ev = &report["representation_error"];
+    component_curves_files(&csv_path, &png_path, &eval.curves)?;
+    let ev = &eval.representation_error;
     println!(
         "{}: {} model ({} shape, β {}), trained in {:.1} s",
         a.out.display(),
@@ -111,16 +120,15 @@ pub fn run(a: TrainArgs) -> Result<()> {
             .join(", "),
         t0.elapsed().as_secs_f64()
     );
-    for part in ["body", "face", "hands"] {
-        let e = &ev[part];
+    for (part, e) in [("body", &ev.body), ("face", &ev.face), ("hands", &ev.hands)] {
         println!(
             "  held-out {part:<5}: mean {:.2} mm (max {:.1}) | with correction {:.2} mm | exact rest shape {:.2} mm | whole-mesh alignment {:.2} mm  [{} rows]",
-            e["mean_mm"].as_f64().unwrap_or(f64::NAN),
-            e["max_mm"].as_f64().unwrap_or(f64::NAN),
-            e["mean_mm_corrected"].as_f64().unwrap_or(f64::NAN),
-            e["mean_mm_exact_rest"].as_f64().unwrap_or(f64::NAN),
-            e["mean_mm_whole_alignment"].as_f64().unwrap_or(f64::NAN),
-            e["rows"]
+            e.mean_mm,
+            e.max_mm,
+            e.mean_mm_corrected,
+            e.mean_mm_exact_rest,
+            e.mean_mm_whole_alignment,
+            e.rows
         );
     }
     println!(
