@@ -6,13 +6,13 @@ use crate::render::{Rgb, Scene, View, error_color};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use panoman_fit::fit::{FitOptions, FitResult, keypoint_residuals, warm_fit_options};
+use panoman_fit::ik::{IkConfig, IkSolver, IkState};
 use panoman_fit::twist::LimbSegment;
 use panoman_fit::{
     Constraints, Fitter, Rig, Sequence, fit_frame, ik_config_for_noise, ik_fit, init_of,
 };
 use panoman_human::clip::{Clip, ClipConfig};
 use panoman_human::dataset::Dataset;
-use panoman_human::ik::{IkConfig, IkSolver, IkState};
 use panoman_human::keypoints::{KeypointsFile, keypoint_index};
 use panoman_human::params::{PoseParams, ShapeParams};
 use panoman_human::regions::{Part, Regions};

@@ -4,11 +4,11 @@
 use anyhow::{Context, Result, anyhow};
 use clap::{Args, ValueEnum};
 use panoman_fit::fit::{FitOptions, FitResult, VertexHandle, keypoint_residuals, warm_fit_options};
+use panoman_fit::ik::{IkConfig, IkResult, IkState};
 use panoman_fit::{
     Constraints, Fitter, IkIcpOptions, Rig, Sequence, fit_frame, ik_config_for_noise, ik_fit,
     ik_icp,
 };
-use panoman_human::ik::{IkConfig, IkResult, IkState};
 use panoman_human::keypoints::KeypointsFile;
 use panoman_mesh::{TriMesh, io};
 use panoman_model::model::{PanoManModel, Params};

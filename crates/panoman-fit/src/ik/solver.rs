@@ -1,0 +1,897 @@
+use super::grid::{PhenGrid, Surface, VertexGrid};
+use super::keypoint_model::{
+    Ctx, Current, Kin, Posable, ShapeEval, Skinned, add_unit_terms, anny_row, rows_into,
+    skinned_row,
+};
+use super::lm::{Row, Var, VarSet};
+use super::stages::{FACE_RIGID, HAND_ROOTS, TORSO_BONES, TORSO_KEYPOINTS};
+use super::targets::{IkTarget, IkTargets, PointTarget};
+use super::{IK_PHENOTYPE, IkConfig, IkResidual, IkResult, IkStageReport, IkState, N_UNITS};
+use crate::error::{FitError, Result};
+use panoman_human::generator::Generator;
+use panoman_human::keypoints::{
+    FACE_OFFSET, KeypointGroup, KeypointSet, LHAND_OFFSET, N_KEYPOINTS, RHAND_OFFSET,
+    keypoint_index, keypoint_names,
+};
+use panoman_human::outputs::{OutputTopology, TopologyMap};
+use panoman_human::params::{GeneratorParams, PoseParams, ShapeParams};
+use panoman_human::rig::{self, Affine};
+use panoman_human::sampling::{LEFT_HAND_SLOT, N_POSABLE, bone_range, posable_bones};
+use panoman_mesh::align::rigid_align;
+use panoman_mesh::geom::{IDENTITY, M3, V3, add, matmul, matvec, norm, scale, sub};
+use rayon::prelude::*;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+/// Inverse kinematics of the generator's LBS rig to the keypoints of one topology (module
+/// docs). Built once per generator, topology and keypoint set; [`IkSolver::solve`] can then be
+/// called any number of times (also from several threads).
+pub struct IkSolver {
+    pub(super) generator: Arc<Generator>,
+    pub(super) map: Arc<TopologyMap>,
+    pub(super) topology: OutputTopology,
+    pub(super) set: KeypointSet,
+    pub(super) row_of_tc: Vec<Option<usize>>,
+    pub(super) parents: Vec<Option<usize>>,
+    /// Relevant vertices: rest positions needed (keypoint vertices and joint regressors), as
+    /// kept-vertex indices of the generator.
+    pub(super) rel_kept: Vec<u32>,
+    pub(super) head_rel: Vec<Vec<u32>>,
+    pub(super) tail_rel: Vec<Vec<u32>>,
+    /// The keypoint rows (`coef` indexes `rel_kept`).
+    pub(super) kp: Skinned,
+    /// Per unit: `(bone, Δhead, Δtail)` per unit value.
+    pub(super) unit_joints: Vec<Vec<(usize, V3, V3)>>,
+    /// Units whose joint motion changes the frame of a posable bone or the root.
+    pub(super) frame_units: Vec<usize>,
+    pub(super) posable: Vec<Posable>,
+    /// Phenotype grids per set of non-fitted shape values (see [`IkSolver::grid`]).
+    pub(super) grids: Mutex<Vec<(String, Arc<PhenGrid>)>>,
+    /// Surface data of point targets (see [`IkSolver::surface`]), built on first use.
+    pub(super) surface: Mutex<Option<Arc<Surface>>>,
+    /// Per-vertex phenotype grids of point targets (see [`IkSolver::vertex_grid`]).
+    pub(super) vertex_grids: Mutex<Vec<(String, Arc<VertexGrid>)>>,
+    pub(super) setup_seconds: f64,
+}
+
+pub(super) fn rel_mean(idx: &[u32], pos: &[V3]) -> V3 {
+    let mut s = [0.0; 3];
+    for &k in idx {
+        let p = pos[k as usize];
+        s = [s[0] + p[0], s[1] + p[1], s[2] + p[2]];
+    }
+    let n = idx.len() as f64;
+    [s[0] / n, s[1] / n, s[2] / n]
+}
+
+/// `Rz(z)·Ry(y)·Rx(x)` of radians (identity for zero angles).
+pub(super) fn euler_rad(e: [f64; 3]) -> M3 {
+    if e == [0.0; 3] {
+        IDENTITY
+    } else {
+        matmul(
+            &rig::rot_z(e[2]),
+            &matmul(&rig::rot_y(e[1]), &rig::rot_x(e[0])),
+        )
+    }
+}
+
+impl IkSolver {
+    /// Precomputes the keypoint model of `keypoints` (a set on `topology`, e.g.
+    /// [`panoman_human::keypoints::KeypointDefinitions::set`]): the keypoint rows composed with the
+    /// topology map onto Anny's output vertices, their skinning bones `σ_kb` and coefficient
+    /// lists, the ancestor sets `A_k` with `S_kc`, the face units' `X^{(j)}_kb` and joint
+    /// displacements (53 rest meshes of the generator), and the phenotype grid of the default
+    /// shape (288 rest meshes), all in parallel. About 40–80 ms on 2 cores.
+    ///
+    /// # Errors
+    /// [`FitError::Invalid`]: the set is invalid or not on `topology`; generator errors.
+    pub fn new(
+        generator: Arc<Generator>,
+        map: Arc<TopologyMap>,
+        topology: OutputTopology,
+        keypoints: &KeypointSet,
+    ) -> Result<IkSolver> {
+        let t0 = Instant::now();
+        keypoints
+            .validate()
+            .map_err(|e| FitError::Invalid(format!("keypoint set: {e}")))?;
+        if keypoints.n_vertices != map.n_vertices(topology) {
+            return Err(FitError::Invalid(format!(
+                "the keypoint set has {} vertices, topology `{topology}` has {}",
+                keypoints.n_vertices,
+                map.n_vertices(topology)
+            )));
+        }
+        let rig = generator.rig();
+        let n_bones = rig.len();
+        let parents: Vec<Option<usize>> = generator.bone_parents().to_vec();
+        if parents.first() != Some(&None) || parents.iter().skip(1).any(Option::is_none) {
+            return Err(FitError::Invalid(
+                "the rig must have bone 0 as its only root".into(),
+            ));
+        }
+
+        // Keypoint rows on anny (output) vertices.
+        let anny_rows: Vec<Vec<(u32, f64)>> = keypoints
+            .rows
+            .iter()
+            .map(|row| anny_row(&map, topology, row))
+            .collect();
+
+        // Relevant kept vertices.
+        let kob = generator.kept_of_base();
+        let out_base = generator.output_vertices();
+        let n_kept = generator.kept_vertices().len();
+        let mut rel_of_kept = vec![u32::MAX; n_kept];
+        let mut rel_kept: Vec<u32> = Vec::new();
+        let mut rel = |kept: u32| -> u32 {
+            let slot = &mut rel_of_kept[kept as usize];
+            if *slot == u32::MAX {
+                *slot = rel_kept.len() as u32;
+                rel_kept.push(kept);
+            }
+            *slot
+        };
+        let mut anny_rel: Vec<(u32, u32)> = Vec::new();
+        for row in &anny_rows {
+            for &(a, _) in row {
+                let k = kob[out_base[a as usize] as usize];
+                anny_rel.push((a, rel(k)));
+            }
+        }
+        let to_rel = |vs: &[u32], rel: &mut dyn FnMut(u32) -> u32| -> Vec<u32> {
+            vs.iter().map(|&b| rel(kob[b as usize])).collect()
+        };
+        let head_rel: Vec<Vec<u32>> = rig
+            .bones
+            .iter()
+            .map(|b| to_rel(&b.head_vertices, &mut rel))
+            .collect();
+        let tail_rel: Vec<Vec<u32>> = rig
+            .bones
+            .iter()
+            .map(|b| to_rel(&b.tail_vertices, &mut rel))
+            .collect();
+        anny_rel.sort_unstable();
+        anny_rel.dedup();
+        let rel_of_anny = |a: u32| -> u32 {
+            let i = anny_rel
+                .binary_search_by_key(&a, |e| e.0)
+                .expect("touched vertex");
+            anny_rel[i].1
+        };
+
+        // Face-unit bases at the relevant vertices: B_j = rest(f = e_j) − rest(0).
+        let default = ShapeParams::default();
+        let rest0 = generator.rest_mesh(&default)?;
+        let unit_dense: Vec<Vec<V3>> = (0..N_UNITS)
+            .into_par_iter()
+            .map(|j| -> Result<Vec<V3>> {
+                let mut s = default.clone();
+                s.facial_actions[j] = 1.0;
+                let r = generator.rest_mesh(&s)?;
+                Ok(rel_kept
+                    .iter()
+                    .map(|&k| sub(r[k as usize], rest0[k as usize]))
+                    .collect())
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let unit_joints: Vec<Vec<(usize, V3, V3)>> = unit_dense
+            .iter()
+            .map(|d| {
+                (0..n_bones)
+                    .filter_map(|c| {
+                        let dh = rel_mean(&head_rel[c], d);
+                        let dt = rel_mean(&tail_rel[c], d);
+                        (dh != [0.0; 3] || dt != [0.0; 3]).then_some((c, dh, dt))
+                    })
+                    .collect()
+            })
+            .collect();
+
+        // Posable bones.
+        let posable: Vec<Posable> = posable_bones()
+            .iter()
+            .enumerate()
+            .map(|(slot, name)| {
+                let c = rig.index(name).ok_or_else(|| {
+                    FitError::Invalid(format!("the rig has no posable bone `{name}`"))
+                })?;
+                let r = bone_range(name).expect("posable bones have ranges");
+                let range = r.map(|a| a.map(f64::to_radians));
+                let prior = range.map(|[lo, hi]| {
+                    let s = lo.abs().max(hi.abs());
+                    if lo < hi { 1.0 / (s * s) } else { 0.0 }
+                });
+                Ok(Posable {
+                    rig: c,
+                    slot,
+                    range,
+                    prior,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut frame_bone = vec![false; n_bones];
+        frame_bone[0] = true;
+        for p in &posable {
+            frame_bone[p.rig] = true;
+        }
+        let frame_units: Vec<usize> = (0..N_UNITS)
+            .filter(|&j| unit_joints[j].iter().any(|(c, _, _)| frame_bone[*c]))
+            .collect();
+
+        // Pairs, ancestors.
+        let skin = generator.skin_weights();
+        let unit_terms = |list: &[(u32, f64)]| -> Vec<(u8, V3)> {
+            let mut out = Vec::new();
+            for (j, d) in unit_dense.iter().enumerate() {
+                let mut x = [0.0; 3];
+                for &(r, w) in list {
+                    x = add(x, scale(d[r as usize], w));
+                }
+                if x != [0.0; 3] {
+                    out.push((j as u8, x));
+                }
+            }
+            out
+        };
+        let mut kp = Skinned::default();
+        for (row, name) in anny_rows.iter().zip(&keypoints.names) {
+            let part = skinned_row(row, &rel_of_anny, skin, &parents, &unit_terms);
+            kp.push(keypoint_index(name), part);
+        }
+        let mut row_of_tc = vec![None; N_KEYPOINTS];
+        for (r, k) in kp.rows.iter().enumerate() {
+            if let Some(t) = k.tc {
+                row_of_tc[t] = Some(r);
+            }
+        }
+        IkSolver {
+            generator,
+            map,
+            topology,
+            set: keypoints.clone(),
+            row_of_tc,
+            parents,
+            rel_kept,
+            head_rel,
+            tail_rel,
+            kp,
+            unit_joints,
+            frame_units,
+            posable,
+            grids: Mutex::new(Vec::new()),
+            surface: Mutex::new(None),
+            vertex_grids: Mutex::new(Vec::new()),
+            setup_seconds: 0.0,
+        }
+        .with_default_grid(t0)
+    }
+
+    /// Seconds spent in [`IkSolver::new`].
+    pub fn setup_seconds(&self) -> f64 {
+        self.setup_seconds
+    }
+
+    /// Topology of the keypoint set and of the result meshes.
+    pub fn topology(&self) -> OutputTopology {
+        self.topology
+    }
+
+    /// Number of Anny output vertices the keypoints depend on (after composing with the
+    /// topology map) plus the joint-regressor vertices: the rest positions the solver needs.
+    pub fn n_relevant_vertices(&self) -> usize {
+        self.rel_kept.len()
+    }
+
+    /// The generator shape of a state: `template` with the six phenotype values and the face
+    /// units of `state`.
+    pub fn shape_params(&self, state: &IkState, template: &ShapeParams) -> ShapeParams {
+        let mut s = template.clone();
+        for (name, &v) in IK_PHENOTYPE.iter().zip(&state.phenotype) {
+            if let Some(slot) = s.phenotype.get_mut(name) {
+                *slot = v;
+            }
+        }
+        s.facial_actions = state.face_units;
+        s
+    }
+
+    /// The generator pose of a state: bone angles in degrees, `R = Rz(z) Ry(y) Rx(x)` written
+    /// as `root_rotation_z_deg = z` and root Euler `(x, y, 0)` (at `|R₂₀| = 1`, `x = 0`),
+    /// root translation `u`.
+    pub fn pose_params(&self, state: &IkState) -> PoseParams {
+        let mut euler_deg: Vec<[f64; 3]> = state
+            .angles
+            .iter()
+            .map(|a| a.map(f64::to_degrees))
+            .collect();
+        let r = &state.rotation;
+        let sy = (-r[2][0]).clamp(-1.0, 1.0);
+        let y = sy.asin();
+        let (x, z) = if sy.abs() < 1.0 - 1e-12 {
+            (r[2][1].atan2(r[2][2]), r[1][0].atan2(r[0][0]))
+        } else {
+            (0.0, (-r[0][1]).atan2(r[1][1]))
+        };
+        euler_deg[0] = [x.to_degrees(), y.to_degrees(), 0.0];
+        PoseParams {
+            euler_deg,
+            root_rotation_z_deg: z.to_degrees(),
+            root_translation: state.translation,
+        }
+    }
+
+    /// [`IkSolver::shape_params`] and [`IkSolver::pose_params`] together.
+    pub fn params(&self, state: &IkState, template: &ShapeParams) -> GeneratorParams {
+        GeneratorParams {
+            shape: self.shape_params(state, template),
+            pose: self.pose_params(state),
+        }
+    }
+    /// Frames from heads and tails: `(local, inv_rest)`.
+    pub(super) fn frames(&self, heads: &[V3], tails: &[V3]) -> (Vec<Affine>, Vec<Affine>) {
+        let frames = rig::rest_frames(self.generator.rig(), heads, tails);
+        let inv: Vec<Affine> = frames.iter().map(Affine::inverse_rigid).collect();
+        let local = self
+            .parents
+            .iter()
+            .enumerate()
+            .map(|(c, p)| match p {
+                None => Affine::IDENTITY,
+                Some(p) => inv[*p].compose(&frames[c]),
+            })
+            .collect();
+        (local, inv)
+    }
+
+    /// Shape quantities at `(β, f)`: the grid interpolation at `β` plus the face units'
+    /// linear terms `Σ_j f_j X^{(j)}_kb`, `Σ_j f_j Δh_j`, `Σ_j f_j Δt_j`; then the frames.
+    pub(super) fn shape_eval(
+        &self,
+        grid: &PhenGrid,
+        beta: &[f64; 6],
+        units: &[f64; 52],
+    ) -> ShapeEval {
+        let mut v = grid.interp(beta, &[1; 6], None);
+        let np = self.kp.pairs.len();
+        let nb = self.parents.len();
+        let mut tails = v.split_off(np + nb);
+        let mut heads = v.split_off(np);
+        let mut x = v;
+        add_unit_terms(&self.kp, units, &mut x);
+        for (j, &f) in units.iter().enumerate() {
+            if f != 0.0 {
+                for &(c, dh, dt) in &self.unit_joints[j] {
+                    heads[c] = add(heads[c], scale(dh, f));
+                    tails[c] = add(tails[c], scale(dt, f));
+                }
+            }
+        }
+        let (local, inv_rest) = self.frames(&heads, &tails);
+        ShapeEval {
+            heads,
+            local,
+            inv_rest,
+            x,
+            tails,
+        }
+    }
+
+    /// Forward kinematics (module docs).
+    pub(super) fn kinematics(&self, shape: &ShapeEval, st: &IkState, kin: &mut Kin) {
+        let n = self.parents.len();
+        kin.world.resize(n, Affine::IDENTITY);
+        kin.pre.resize(n, IDENTITY);
+        kin.skin.resize(n, Affine::IDENTITY);
+        for c in 0..n {
+            match self.parents[c] {
+                None => {
+                    kin.world[c] = Affine::new(st.rotation, add(shape.heads[c], st.translation));
+                    kin.pre[c] = IDENTITY;
+                }
+                Some(p) => {
+                    let g = kin.world[p].compose(&shape.local[c]);
+                    kin.pre[c] = g.m;
+                    kin.world[c] = Affine::new(matmul(&g.m, &euler_rad(st.angles[c])), g.t);
+                }
+            }
+            kin.skin[c] = kin.world[c].compose(&shape.inv_rest[c]);
+        }
+    }
+
+    pub(super) fn keypoints_into(&self, shape: &ShapeEval, kin: &Kin, out: &mut Vec<V3>) {
+        rows_into(&self.kp, &shape.x, kin, out);
+    }
+
+    pub(super) fn current(&self, state: IkState, ctx: Ctx<'_>) -> Current {
+        let shape = Arc::new(self.shape_eval(ctx.grid, &state.phenotype, &state.face_units));
+        let mut kin = Kin::default();
+        self.kinematics(&shape, &state, &mut kin);
+        let mut k = Vec::new();
+        self.keypoints_into(&shape, &kin, &mut k);
+        let pts = ctx.pts.map(|m| {
+            let x = Arc::new(m.shape_x(&state.phenotype, &state.face_units));
+            m.eval(x, &kin)
+        });
+        Current {
+            state,
+            shape,
+            kin,
+            k,
+            pts,
+        }
+    }
+
+    /// Evaluates a new state, reusing the shape of `prev` when `β` and `f` are unchanged.
+    pub(super) fn reevaluate(&self, state: IkState, prev: &Current, ctx: Ctx<'_>) -> Current {
+        if state.phenotype == prev.state.phenotype && state.face_units == prev.state.face_units {
+            let shape = prev.shape.clone();
+            let mut kin = prev.kin.clone();
+            self.kinematics(&shape, &state, &mut kin);
+            let mut k = Vec::with_capacity(prev.k.len());
+            self.keypoints_into(&shape, &kin, &mut k);
+            let pts = ctx.pts.map(|m| {
+                let x = match &prev.pts {
+                    Some(p) => p.x.clone(),
+                    None => Arc::new(m.shape_x(&state.phenotype, &state.face_units)),
+                };
+                m.eval(x, &kin)
+            });
+            return Current {
+                state,
+                shape,
+                kin,
+                k,
+                pts,
+            };
+        }
+        self.current(state, ctx)
+    }
+
+    /// The model's keypoints (set order) at `state`, with `template` supplying the shape
+    /// values the IK does not fit. Equal (to rounding) to evaluating the keypoint set on the
+    /// generator's posed mesh of [`IkSolver::params`].
+    ///
+    /// # Errors
+    /// Generator errors while building the template's phenotype grid.
+    pub fn model_keypoints(&self, state: &IkState, template: &ShapeParams) -> Result<Vec<V3>> {
+        let grid = self.grid(template)?;
+        Ok(self.current(state.clone(), Ctx::new(&grid, None)).k)
+    }
+
+    /// The model positions `Σ_m b_m x_m(p)` of point targets (their order) at `state`, by the
+    /// solver's fast point model (per-vertex phenotype grid, skinning collapsed per bone);
+    /// equal to rounding to evaluating the rows on the generator's posed mesh of
+    /// [`IkSolver::params`]. Targets, weights and normals are not used.
+    ///
+    /// # Errors
+    /// Invalid point rows (see [`IkSolver::solve_with_points`]); generator errors.
+    pub fn model_points(
+        &self,
+        state: &IkState,
+        template: &ShapeParams,
+        points: &[PointTarget],
+    ) -> Result<Vec<V3>> {
+        let grid = self.grid(template)?;
+        let pm = self.point_model(points, template)?;
+        let cur = self.current(state.clone(), Ctx::new(&grid, Some(&pm)));
+        Ok(cur.pts.map(|p| p.p).unwrap_or_default())
+    }
+
+    /// Fits the rig to `targets` (module docs: staged projected Levenberg–Marquardt).
+    ///
+    /// # Errors
+    /// [`FitError::Invalid`]: empty targets, a non-finite position or weight, a keypoint
+    /// the set does not define, an invalid configuration or initial shape; generator errors.
+    /// Unreachable targets are not an error: the best fit is returned.
+    pub fn solve(&self, targets: &IkTargets, config: &IkConfig) -> Result<IkResult> {
+        self.solve_with_points(targets, &[], config)
+    }
+
+    /// Fits the rig to `targets` and to extra surface point targets `points` (see
+    /// [`PointTarget`]): the objective of the module docs plus
+    /// `Σ_p w_p |P_p(Σ_m b_m x_m(θ, β, f) − p̂_p)|²` (`P_p = n̂ n̂ᵀ` for point-to-plane targets,
+    /// else the identity), in the final `all` stage (both starts of the phenotype restart;
+    /// with [`IkConfig::initial_state`] that is the only stage). The keypoints keep their
+    /// role: the early stages fit them alone, and they initialise the global motion.
+    ///
+    /// **Point model.** A point is a sparse linear combination of template vertices, so it is
+    /// modelled like a keypoint (module docs): `Σ_b (M_b X_pb + σ_pb t_b)` with the pairs of
+    /// its skinning bones. The rest positions `x̄_v(β)` of its vertices come from a
+    /// per-vertex phenotype grid (the rest meshes at the 288 grid points, kept for every
+    /// vertex the topology reaches; built on the first call per set of non-fitted shape
+    /// values: 288 rest meshes, ~0.15–0.3 s on 2 cores, 92 MB on the full template), so
+    /// `X_pb` and `∂X_pb/∂β_i` are exact multilinear interpolations; face units add
+    /// `Σ_j f_j X^{(j)}_pb`. The Jacobian is analytic as for the keypoints (bone angles,
+    /// global motion, face units' rest part; phenotype from the grid) plus the same
+    /// finite-difference frame parts. Building the model of a few thousand points takes a
+    /// few milliseconds, so the correspondences may change between calls (ICP); variables
+    /// that only points depend on (e.g. toes) join the final stage.
+    ///
+    /// Without points this is exactly [`IkSolver::solve`].
+    ///
+    /// # Errors
+    /// As [`IkSolver::solve`]; [`FitError::Invalid`] for a point with no vertices, a vertex
+    /// out of range of the topology, a non-finite coefficient, position, weight or normal, a
+    /// negative weight or a zero normal.
+    pub fn solve_with_points(
+        &self,
+        targets: &IkTargets,
+        points: &[PointTarget],
+        config: &IkConfig,
+    ) -> Result<IkResult> {
+        let t_start = Instant::now();
+        targets.validate()?;
+        for (name, v) in [
+            ("pose_prior", config.pose_prior),
+            ("phenotype_prior", config.phenotype_prior),
+            ("face_unit_prior", config.face_unit_prior),
+            ("tolerance", config.tolerance),
+            ("early_prior_scale", config.early_prior_scale),
+        ] {
+            if !v.is_finite() || v < 0.0 {
+                return Err(FitError::Invalid(format!(
+                    "IK config: `{name}` = {v} must be finite and ≥ 0"
+                )));
+            }
+        }
+        let mut template = config.initial_shape.clone().unwrap_or_default();
+        template.validate().map_err(FitError::Invalid)?;
+        for name in IK_PHENOTYPE {
+            if let Some(v) = template.phenotype.get_mut(name) {
+                *v = v.clamp(0.0, 1.0);
+            }
+        }
+        let all_rows: Vec<Row> = targets
+            .targets
+            .iter()
+            .map(|t| {
+                let row = self.row_of_tc[t.index].ok_or_else(|| {
+                    FitError::Invalid(format!(
+                        "keypoint `{}` is not defined by the keypoint set",
+                        keypoint_names()[t.index]
+                    ))
+                })?;
+                Ok(Row {
+                    row,
+                    target: t.position,
+                    weight: t.weight,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let fit_units = config.fit_face_units.unwrap_or_else(|| {
+            targets
+                .targets
+                .iter()
+                .any(|t| t.weight > 0.0 && KeypointGroup::of(t.index) == KeypointGroup::Face)
+        });
+        let n_bones = self.parents.len();
+        let warm = config.initial_state.is_some();
+        let mut state = match &config.initial_state {
+            Some(s) => {
+                if s.angles.len() != n_bones
+                    || !s
+                        .translation
+                        .iter()
+                        .chain(s.rotation.iter().flatten())
+                        .all(|x| x.is_finite())
+                {
+                    return Err(FitError::Invalid(format!(
+                        "IK warm start: {} bone angles (expected {n_bones}) or non-finite global motion",
+                        s.angles.len()
+                    )));
+                }
+                s.clone()
+            }
+            None => IkState::rest(n_bones, &template),
+        };
+        if !fit_units && !warm {
+            state.face_units = template.facial_actions;
+        }
+        let grid = self.grid(&template)?;
+        let pm = if points.is_empty() {
+            None
+        } else {
+            Some(self.point_model(points, &template)?)
+        };
+        let ctx0 = Ctx::new(&grid, None);
+        let ctx_points = Ctx::new(&grid, pm.as_ref());
+        let n_points = pm
+            .as_ref()
+            .map_or(0, |m| m.rows.iter().filter(|r| r.weight > 0.0).count());
+        let mut cur = self.current(state, ctx0);
+
+        // Initial global motion: Kabsch on the torso keypoints.
+        let weighted: Vec<&IkTarget> = targets.targets.iter().filter(|t| t.weight > 0.0).collect();
+        let pick = |f: &dyn Fn(usize) -> bool| -> Vec<&IkTarget> {
+            weighted.iter().copied().filter(|t| f(t.index)).collect()
+        };
+        let mut init = pick(&|i| TORSO_KEYPOINTS.contains(&i));
+        if init.len() < 3 {
+            init = pick(&|i| i < FACE_OFFSET);
+        }
+        if init.len() < 3 {
+            init = weighted.clone();
+        }
+        let model: Vec<V3> = init
+            .iter()
+            .map(|t| cur.k[self.row_of_tc[t.index].expect("checked")])
+            .collect();
+        let goal: Vec<V3> = init.iter().map(|t| t.position).collect();
+        let w: Vec<f64> = init.iter().map(|t| t.weight).collect();
+        let h0 = cur.shape.heads[0];
+        let mut st = cur.state.clone();
+        if warm {
+            // Keep the warm start's global motion.
+        } else if init.len() >= 3 {
+            let rigid = rigid_align(&model, &goal, Some(&w));
+            st.rotation = rigid.r;
+            // R k + t = R (k − h0) + h0 + u  ⇒  u = t + R h0 − h0.
+            st.translation = sub(add(rigid.t, matvec(&rigid.r, h0)), h0);
+        } else {
+            let ws: f64 = w.iter().sum();
+            let mut d = [0.0; 3];
+            for ((m, q), wi) in model.iter().zip(&goal).zip(&w) {
+                d = add(d, scale(sub(*q, *m), wi / ws));
+            }
+            st.translation = d;
+        }
+        cur = self.reevaluate(st, &cur, ctx0);
+
+        // Stages.
+        let in_group = |i: usize, lo: usize, hi: usize| (lo..hi).contains(&i);
+        let body_rows: Vec<Row> = all_rows
+            .iter()
+            .zip(&targets.targets)
+            .filter(|(_, t)| {
+                let i = t.index;
+                i < FACE_OFFSET
+                    || (in_group(i, LHAND_OFFSET, RHAND_OFFSET)
+                        && HAND_ROOTS.contains(&(i - LHAND_OFFSET)))
+                    || (i >= RHAND_OFFSET && HAND_ROOTS.contains(&(i - RHAND_OFFSET)))
+                    || (in_group(i, FACE_OFFSET, LHAND_OFFSET)
+                        && FACE_RIGID.contains(&(i - FACE_OFFSET)))
+            })
+            .map(|(r, _)| *r)
+            .filter(|r| r.weight > 0.0)
+            .collect();
+        let torso_rows: Vec<Row> = all_rows
+            .iter()
+            .zip(&targets.targets)
+            .filter(|(r, t)| TORSO_KEYPOINTS.contains(&t.index) && r.weight > 0.0)
+            .map(|(r, _)| *r)
+            .collect();
+        let every_rows: Vec<Row> = all_rows
+            .iter()
+            .copied()
+            .filter(|r| r.weight > 0.0)
+            .collect();
+        let has_face_rows = |rows: &[Row]| {
+            rows.iter().any(|r| {
+                self.kp.rows[r.row]
+                    .tc
+                    .is_some_and(|t| KeypointGroup::of(t) == KeypointGroup::Face)
+            })
+        };
+
+        struct Spec<'r> {
+            name: &'static str,
+            global: bool,
+            bones: &'r dyn Fn(&Posable) -> bool,
+            phen: bool,
+            units: bool,
+            rows: &'r [Row],
+            iters: usize,
+        }
+        let torso_bone = |p: &Posable| {
+            let name = &self.generator.bone_names()[p.rig];
+            TORSO_BONES.contains(&name.as_str())
+        };
+        let body_bone = |p: &Posable| p.slot < LEFT_HAND_SLOT;
+        let hand_face_bone = |p: &Posable| p.slot >= LEFT_HAND_SLOT && p.slot < N_POSABLE;
+        let any_bone = |_: &Posable| true;
+        let specs = [
+            Spec {
+                name: "torso",
+                global: true,
+                bones: &torso_bone,
+                phen: false,
+                units: false,
+                rows: &torso_rows,
+                iters: config.stage_iterations,
+            },
+            Spec {
+                name: "body",
+                global: true,
+                bones: &body_bone,
+                phen: config.fit_phenotype,
+                units: false,
+                rows: &body_rows,
+                iters: config.stage_iterations,
+            },
+            Spec {
+                name: "hands_face",
+                global: false,
+                bones: &hand_face_bone,
+                phen: false,
+                units: fit_units,
+                rows: &every_rows,
+                iters: config.stage_iterations,
+            },
+            Spec {
+                name: "all",
+                global: true,
+                bones: &any_bone,
+                phen: config.fit_phenotype,
+                units: fit_units,
+                rows: &every_rows,
+                iters: config.max_iterations,
+            },
+        ];
+        let mut stages = Vec::new();
+        let mut iterations = 0;
+        for spec in &specs {
+            if spec.rows.is_empty() || spec.iters == 0 || (warm && spec.name != "all") {
+                continue;
+            }
+            let t = Instant::now();
+            // Point targets join the final stage.
+            let ctx = if spec.name == "all" { ctx_points } else { ctx0 };
+            // Bones that influence a stage keypoint (or point).
+            let mut influences = vec![false; n_bones];
+            for r in spec.rows {
+                for &c in &self.kp.rows[r.row].anc {
+                    influences[c] = true;
+                }
+            }
+            if let Some(m) = ctx.pts {
+                for (row, r) in m.sk.rows.iter().zip(&m.rows) {
+                    if r.weight > 0.0 {
+                        for &c in &row.anc {
+                            influences[c] = true;
+                        }
+                    }
+                }
+            }
+            let mut vs = VarSet::new(n_bones);
+            if spec.global {
+                for a in 0..3 {
+                    vs.push(Var::Trans(a));
+                    vs.push(Var::Rot(a));
+                }
+            }
+            for p in &self.posable {
+                if !(spec.bones)(p) || !influences[p.rig] {
+                    continue;
+                }
+                for axis in 0..3 {
+                    let [lo, hi] = p.range[axis];
+                    if lo < hi {
+                        vs.push(Var::Angle {
+                            bone: p.rig,
+                            axis,
+                            lo,
+                            hi,
+                            prior: p.prior[axis],
+                        });
+                    }
+                }
+            }
+            if spec.phen {
+                for i in 0..6 {
+                    vs.push(Var::Phen(i));
+                }
+            }
+            if spec.units && has_face_rows(spec.rows) {
+                for j in 0..N_UNITS {
+                    vs.push(Var::Unit(j));
+                }
+            }
+            if ctx.pts.is_some() && cur.pts.is_none() {
+                cur = self.reevaluate(cur.state.clone(), &cur, ctx);
+            }
+            let cost_before = self.cost(&cur, &every_rows, ctx.pts, config);
+            let scale = if spec.name == "all" {
+                1.0
+            } else {
+                config.early_prior_scale
+            };
+            let stage_config = IkConfig {
+                pose_prior: config.pose_prior * scale,
+                phenotype_prior: config.phenotype_prior * scale,
+                face_unit_prior: config.face_unit_prior * scale,
+                ..config.clone()
+            };
+            let it = if spec.name == "all" && spec.phen && config.phenotype_restart && !warm {
+                // Second start: the same pose from the default phenotype.
+                let mut st = cur.state.clone();
+                st.phenotype = [0.5; 6];
+                let mut other = self.reevaluate(st, &cur, ctx);
+                let (rows, iters) = (spec.rows, spec.iters);
+                let (a, b) = rayon::join(
+                    || self.lm_stage(&mut cur, &vs, rows, &stage_config, ctx, iters),
+                    || self.lm_stage(&mut other, &vs, rows, &stage_config, ctx, iters),
+                );
+                if self.cost(&other, &every_rows, ctx.pts, config)
+                    < self.cost(&cur, &every_rows, ctx.pts, config)
+                {
+                    cur = other;
+                }
+                a + b
+            } else {
+                self.lm_stage(&mut cur, &vs, spec.rows, &stage_config, ctx, spec.iters)
+            };
+            iterations += it;
+            stages.push(IkStageReport {
+                name: spec.name,
+                n_variables: vs.vars.len(),
+                n_targets: spec.rows.len(),
+                n_points: if ctx.pts.is_some() { n_points } else { 0 },
+                iterations: it,
+                cost_before,
+                cost_after: self.cost(&cur, &every_rows, ctx.pts, config),
+                seconds: t.elapsed().as_secs_f64(),
+            });
+        }
+
+        // Result meshes from the generator itself.
+        let cost = self.cost(&cur, &every_rows, pm.as_ref(), config);
+        let state = cur.state;
+        let params = self.params(&state, &template);
+        let identity = self.generator.identity(&params.shape)?;
+        let posed_anny = identity.pose(&params.pose);
+        let posed = self.map.map(self.topology, &posed_anny.vertices);
+        let rest = self.map.map(self.topology, identity.rest_vertices());
+        let keypoints = self.set.evaluate(&posed);
+        let mut sums = [(0.0, 0usize); 4];
+        let residuals: Vec<IkResidual> = targets
+            .targets
+            .iter()
+            .zip(&all_rows)
+            .map(|(t, r)| {
+                let distance = norm(sub(keypoints[r.row], t.position));
+                let g = KeypointGroup::of(t.index);
+                let gi = KeypointGroup::ALL.iter().position(|x| *x == g).unwrap_or(0);
+                sums[gi].0 += distance;
+                sums[gi].1 += 1;
+                IkResidual {
+                    index: t.index,
+                    name: keypoint_names()[t.index].clone(),
+                    distance,
+                    weight: t.weight,
+                }
+            })
+            .collect();
+        let group_mean_mm = sums.map(|(s, n)| (n > 0).then(|| 1e3 * s / n as f64));
+        let point_residual_mm = pm.as_ref().map(|m| {
+            let (mut sum, mut count) = (0.0, 0usize);
+            for (p, r) in points.iter().zip(&m.rows) {
+                if r.weight > 0.0 {
+                    let mut q = [0.0; 3];
+                    for &(v, b) in &p.rows {
+                        q = add(q, scale(posed[v as usize], b));
+                    }
+                    sum += norm(r.proj(sub(q, r.target)));
+                    count += 1;
+                }
+            }
+            1e3 * sum / count.max(1) as f64
+        });
+        Ok(IkResult {
+            params,
+            state,
+            topology: self.topology,
+            posed,
+            rest,
+            keypoints,
+            residuals,
+            group_mean_mm,
+            iterations,
+            stages,
+            cost,
+            point_residual_mm,
+            seconds: t_start.elapsed().as_secs_f64(),
+        })
+    }
+}
