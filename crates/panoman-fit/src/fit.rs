@@ -445,7 +445,7 @@ impl Fitter {
             }
         }
         if let Some(f) = &c.fixed {
-            f.validate(&self.model).map_err(FitError::Invalid)?;
+            f.validate(&self.model)?;
         }
         if let Some(m) = &c.motion {
             if self.model.motion.is_none() {
@@ -472,9 +472,7 @@ impl Fitter {
                     )));
                 }
             }
-            prev.params
-                .validate(&self.model)
-                .map_err(FitError::Invalid)?;
+            prev.params.validate(&self.model)?;
         }
         Ok(())
     }

@@ -290,7 +290,12 @@ impl KeypointSet {
     ///
     /// # Errors
     /// One line naming the first bad keypoint.
-    pub fn validate(&self) -> std::result::Result<(), String> {
+    pub fn validate(&self) -> Result<()> {
+        self.validate_msg().map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::validate`] with the message as a `String`.
+    fn validate_msg(&self) -> std::result::Result<(), String> {
         if self.names.len() != self.rows.len() {
             return Err(format!(
                 "{} names for {} rows",
@@ -335,7 +340,13 @@ impl KeypointSet {
     ///
     /// # Errors
     /// The mesh does not have `n_vertices` vertices.
-    pub fn try_evaluate(&self, positions: &[V3]) -> std::result::Result<Vec<V3>, String> {
+    pub fn try_evaluate(&self, positions: &[V3]) -> Result<Vec<V3>> {
+        self.try_evaluate_msg(positions)
+            .map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::try_evaluate`] with the message as a `String`.
+    fn try_evaluate_msg(&self, positions: &[V3]) -> std::result::Result<Vec<V3>, String> {
         if positions.len() != self.n_vertices {
             return Err(format!(
                 "the mesh has {} vertices, the keypoint definitions expect {}",
@@ -405,7 +416,12 @@ impl KeypointsFile {
     ///
     /// # Errors
     /// One line naming the keypoint.
-    pub fn validate(&self) -> std::result::Result<(), String> {
+    pub fn validate(&self) -> Result<()> {
+        self.validate_msg().map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::validate`] with the message as a `String`.
+    fn validate_msg(&self) -> std::result::Result<(), String> {
         let names = keypoint_names();
         for (&i, p) in &self.points {
             let name = names.get(i).ok_or_else(|| format!("keypoint index {i}"))?;
@@ -432,7 +448,12 @@ impl KeypointsFile {
     ///
     /// # Errors
     /// One line saying what is wrong.
-    pub fn parse(text: &str) -> std::result::Result<KeypointsFile, String> {
+    pub fn parse(text: &str) -> Result<KeypointsFile> {
+        Self::parse_msg(text).map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::parse`] with the message as a `String`.
+    fn parse_msg(text: &str) -> std::result::Result<KeypointsFile, String> {
         let value: serde_json::Value =
             serde_json::from_str(text).map_err(|e| format!("invalid JSON: {e}"))?;
         let obj = value
@@ -483,7 +504,7 @@ impl KeypointsFile {
         if !have_points {
             return Err("missing `keypoints`".into());
         }
-        out.validate()?;
+        out.validate_msg()?;
         Ok(out)
     }
 
@@ -492,8 +513,13 @@ impl KeypointsFile {
     ///
     /// # Errors
     /// A non-finite value (see [`KeypointsFile::validate`]).
-    pub fn to_json(&self) -> std::result::Result<String, String> {
-        self.validate()?;
+    pub fn to_json(&self) -> Result<String> {
+        self.to_json_msg().map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::to_json`] with the message as a `String`.
+    fn to_json_msg(&self) -> std::result::Result<String, String> {
+        self.validate_msg()?;
         let names = keypoint_names();
         let mut s = String::from("{\n  \"units\": \"m\",\n  \"keypoints\": {");
         for (k, (&i, p)) in self.points.iter().enumerate() {
@@ -521,7 +547,7 @@ impl KeypointsFile {
     /// I/O or format errors naming the file.
     pub fn read(path: &Path) -> Result<KeypointsFile> {
         let text = std::fs::read_to_string(path).map_err(|e| HumanError::io(path, e))?;
-        KeypointsFile::parse(&text).map_err(|w| HumanError::format(path, w))
+        KeypointsFile::parse(&text).map_err(|e| e.in_file(path))
     }
 
     /// Writes a keypoints JSON file atomically (temporary file in the same directory, then
@@ -530,7 +556,7 @@ impl KeypointsFile {
     /// # Errors
     /// I/O errors or non-finite values, naming the file.
     pub fn write(&self, path: &Path) -> Result<()> {
-        let text = self.to_json().map_err(|w| HumanError::format(path, w))?;
+        let text = self.to_json().map_err(|e| e.in_file(path))?;
         write_atomic(path, &text)
     }
 }
@@ -1383,7 +1409,12 @@ fn face_landmark_positions(
 ///
 /// # Errors
 /// One line if a rule finds no answer (e.g. a mesh without eye or mouth openings).
-pub fn face_landmarks(
+pub fn face_landmarks(template: &Template, regions: &Regions, rest: &[V3]) -> Result<Vec<Binding>> {
+    face_landmarks_msg(template, regions, rest).map_err(HumanError::Invalid)
+}
+
+/// [`face_landmarks`] with the message as a `String`.
+fn face_landmarks_msg(
     template: &Template,
     regions: &Regions,
     rest: &[V3],
@@ -1848,7 +1879,7 @@ pub fn build_definitions(
 
     // Surface points.
     let mut surface: Vec<Option<Binding>> = vec![None; N_KEYPOINTS];
-    let face = face_landmarks(template, regions, &rest).map_err(HumanError::Invalid)?;
+    let face = face_landmarks(template, regions, &rest)?;
     for (k, b) in face.iter().enumerate() {
         surface[FACE_OFFSET + k] = Some(*b);
     }
@@ -1917,7 +1948,7 @@ pub fn build_definitions(
 
     // Candidates: the nearest vertices of the rest target among the allowed ones.
     let rest_posed = default_id.pose(&PoseParams::default());
-    let small_regions = Regions::small(regions, small).map_err(HumanError::Invalid)?;
+    let small_regions = Regions::small(regions, small)?;
     let hand_full = [
         regions.mask(Part::LeftHand, 3).vertex_ids(),
         regions.mask(Part::RightHand, 3).vertex_ids(),
@@ -2129,8 +2160,8 @@ pub fn build_definitions(
         rows: rows_small,
         n_vertices: rest_small.len(),
     };
-    full.validate().map_err(HumanError::Invalid)?;
-    small_set.validate().map_err(HumanError::Invalid)?;
+    full.validate()?;
+    small_set.validate()?;
     Ok(KeypointDefinitions {
         full,
         small: small_set,
@@ -2222,6 +2253,15 @@ impl KeypointDefinitions {
     /// # Errors
     /// One line saying what does not match.
     pub fn from_cache_json(
+        v: &serde_json::Value,
+        template: &Template,
+        small_vertices: usize,
+    ) -> Result<KeypointDefinitions> {
+        Self::from_cache_json_msg(v, template, small_vertices).map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::from_cache_json`] with the message as a `String`.
+    fn from_cache_json_msg(
         v: &serde_json::Value,
         template: &Template,
         small_vertices: usize,

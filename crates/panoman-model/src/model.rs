@@ -172,7 +172,7 @@ impl Params {
             path: path.to_path_buf(),
             what: format!("not a valid parameter file: {e}"),
         })?;
-        p.validate(model).map_err(|what| ModelError::Format {
+        p.validate_msg(model).map_err(|what| ModelError::Format {
             path: path.to_path_buf(),
             what,
         })?;
@@ -180,7 +180,15 @@ impl Params {
     }
 
     /// Checks names, lengths and finiteness against `model`; the message says what is wrong.
-    pub fn validate(&self, model: &PanoManModel) -> std::result::Result<(), String> {
+    ///
+    /// # Errors
+    /// [`ModelError::Params`] with one line.
+    pub fn validate(&self, model: &PanoManModel) -> Result<()> {
+        self.validate_msg(model).map_err(ModelError::Params)
+    }
+
+    /// [`Self::validate`] with the message as a `String`.
+    fn validate_msg(&self, model: &PanoManModel) -> std::result::Result<(), String> {
         let k = model.shape.n_components();
         if !self.alpha.is_empty() && self.alpha.len() != k {
             return Err(format!(

@@ -1,4 +1,6 @@
 use super::grid::phen_cell;
+use faer::linalg::solvers::Solve;
+
 use super::jacobian::Jacobian;
 use super::keypoint_model::{Ctx, Current, PointModel, PtEval};
 use super::solver::IkSolver;
@@ -404,7 +406,7 @@ pub(super) fn damped_step(
             a[p * m + p] += mu * d;
             b[p] = -g[i] - clamped.iter().map(|&j| hij(i, j) * delta[j]).sum::<f64>();
         }
-        if !cholesky_solve(&mut a, m, &mut b) {
+        if !cholesky_solve(&a, m, &mut b) {
             return None;
         }
         let mut out = Vec::new();
@@ -429,38 +431,13 @@ pub(super) fn damped_step(
 }
 
 /// Solves `A x = b` in place for a symmetric positive definite `A` (`n × n`, row-major, lower
-/// triangle read) by Cholesky `A = L Lᵀ`; `b` becomes `x`. False if `A` is not numerically
-/// positive definite.
-pub(super) fn cholesky_solve(a: &mut [f64], n: usize, b: &mut [f64]) -> bool {
-    for j in 0..n {
-        let (upper, lower) = a.split_at_mut((j + 1) * n);
-        let rj = &mut upper[j * n..];
-        let d = rj[j] - rj[..j].iter().map(|x| x * x).sum::<f64>();
-        if d.is_nan() || d <= 0.0 {
-            return false;
-        }
-        let dj = d.sqrt();
-        rj[j] = dj;
-        let rj = &rj[..j];
-        for ri in lower.chunks_exact_mut(n) {
-            let s: f64 = ri[..j].iter().zip(rj).map(|(x, y)| x * y).sum();
-            ri[j] = (ri[j] - s) / dj;
-        }
-    }
-    for i in 0..n {
-        let s: f64 = a[i * n..i * n + i]
-            .iter()
-            .zip(&b[..i])
-            .map(|(x, y)| x * y)
-            .sum();
-        b[i] = (b[i] - s) / a[i * n + i];
-    }
-    for i in (0..n).rev() {
-        let mut s = b[i];
-        for k in i + 1..n {
-            s -= a[k * n + i] * b[k];
-        }
-        b[i] = s / a[i * n + i];
-    }
+/// triangle read) by faer's Cholesky factorization `A = L Lᵀ`; `b` becomes `x`. False if `A`
+/// is not numerically positive definite (a pivot that is not > 0, NaN included).
+pub(super) fn cholesky_solve(a: &[f64], n: usize, b: &mut [f64]) -> bool {
+    let a = faer::MatRef::from_row_major_slice(a, n, n);
+    let Ok(llt) = a.llt(faer::Side::Lower) else {
+        return false;
+    };
+    llt.solve_in_place(faer::ColMut::from_slice_mut(b).as_mat_mut());
     true
 }

@@ -1,27 +1,29 @@
-use super::grid::{PhenGrid, Surface, VertexGrid};
-use super::keypoint_model::{
-    Ctx, Current, Kin, Posable, ShapeEval, Skinned, add_unit_terms, anny_row, rows_into,
-    skinned_row,
-};
-use super::lm::{Row, Var, VarSet};
-use super::stages::{FACE_RIGID, HAND_ROOTS, TORSO_BONES, TORSO_KEYPOINTS};
-use super::targets::{IkTarget, IkTargets, PointTarget};
-use super::{IK_PHENOTYPE, IkConfig, IkResidual, IkResult, IkStageReport, IkState, N_UNITS};
-use crate::error::{FitError, Result};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
 use panoman_human::generator::Generator;
 use panoman_human::keypoints::{
-    FACE_OFFSET, KeypointGroup, KeypointSet, LHAND_OFFSET, N_KEYPOINTS, RHAND_OFFSET,
-    keypoint_index, keypoint_names,
+    FACE_OFFSET, KeypointGroup, KeypointSet, N_KEYPOINTS, keypoint_index, keypoint_names,
 };
 use panoman_human::outputs::{OutputTopology, TopologyMap};
 use panoman_human::params::{GeneratorParams, PoseParams, ShapeParams};
 use panoman_human::rig::{self, Affine};
-use panoman_human::sampling::{LEFT_HAND_SLOT, N_POSABLE, bone_range, posable_bones};
+use panoman_human::sampling::{bone_range, posable_bones};
+use panoman_human::skinning::SkinWeights;
 use panoman_mesh::align::rigid_align;
 use panoman_mesh::geom::{IDENTITY, M3, V3, add, matmul, matvec, norm, scale, sub};
 use rayon::prelude::*;
-use std::sync::{Arc, Mutex};
-use std::time::Instant;
+
+use super::grid::{PhenGrid, Surface, VertexGrid};
+use super::keypoint_model::{
+    Ctx, Current, Kin, PointModel, Posable, ShapeEval, Skinned, add_unit_terms, anny_row,
+    rows_into, skinned_row,
+};
+use super::lm::Row;
+use super::stages::{StagePlan, StageRows, TORSO_KEYPOINTS};
+use super::targets::{IkTarget, IkTargets, PointTarget};
+use super::{IK_PHENOTYPE, IkConfig, IkResidual, IkResult, IkState, N_UNITS};
+use crate::error::{FitError, Result};
 /// Inverse kinematics of the generator's LBS rig to the keypoints of one topology (module
 /// docs). Built once per generator, topology and keypoint set; [`IkSolver::solve`] can then be
 /// called any number of times (also from several threads).
@@ -117,135 +119,26 @@ impl IkSolver {
             .iter()
             .map(|row| anny_row(&map, topology, row))
             .collect();
-
-        // Relevant kept vertices.
-        let kob = generator.kept_of_base();
-        let out_base = generator.output_vertices();
-        let n_kept = generator.kept_vertices().len();
-        let mut rel_of_kept = vec![u32::MAX; n_kept];
-        let mut rel_kept: Vec<u32> = Vec::new();
-        let mut rel = |kept: u32| -> u32 {
-            let slot = &mut rel_of_kept[kept as usize];
-            if *slot == u32::MAX {
-                *slot = rel_kept.len() as u32;
-                rel_kept.push(kept);
-            }
-            *slot
-        };
-        let mut anny_rel: Vec<(u32, u32)> = Vec::new();
-        for row in &anny_rows {
-            for &(a, _) in row {
-                let k = kob[out_base[a as usize] as usize];
-                anny_rel.push((a, rel(k)));
-            }
-        }
-        let to_rel = |vs: &[u32], rel: &mut dyn FnMut(u32) -> u32| -> Vec<u32> {
-            vs.iter().map(|&b| rel(kob[b as usize])).collect()
-        };
-        let head_rel: Vec<Vec<u32>> = rig
-            .bones
-            .iter()
-            .map(|b| to_rel(&b.head_vertices, &mut rel))
-            .collect();
-        let tail_rel: Vec<Vec<u32>> = rig
-            .bones
-            .iter()
-            .map(|b| to_rel(&b.tail_vertices, &mut rel))
-            .collect();
-        anny_rel.sort_unstable();
-        anny_rel.dedup();
-        let rel_of_anny = |a: u32| -> u32 {
-            let i = anny_rel
-                .binary_search_by_key(&a, |e| e.0)
-                .expect("touched vertex");
-            anny_rel[i].1
-        };
-
+        let rel = Relevant::new(&generator, &anny_rows);
         // Face-unit bases at the relevant vertices: B_j = rest(f = e_j) − rest(0).
-        let default = ShapeParams::default();
-        let rest0 = generator.rest_mesh(&default)?;
-        let unit_dense: Vec<Vec<V3>> = (0..N_UNITS)
-            .into_par_iter()
-            .map(|j| -> Result<Vec<V3>> {
-                let mut s = default.clone();
-                s.facial_actions[j] = 1.0;
-                let r = generator.rest_mesh(&s)?;
-                Ok(rel_kept
-                    .iter()
-                    .map(|&k| sub(r[k as usize], rest0[k as usize]))
-                    .collect())
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let unit_joints: Vec<Vec<(usize, V3, V3)>> = unit_dense
-            .iter()
-            .map(|d| {
-                (0..n_bones)
-                    .filter_map(|c| {
-                        let dh = rel_mean(&head_rel[c], d);
-                        let dt = rel_mean(&tail_rel[c], d);
-                        (dh != [0.0; 3] || dt != [0.0; 3]).then_some((c, dh, dt))
-                    })
-                    .collect()
-            })
-            .collect();
-
-        // Posable bones.
-        let posable: Vec<Posable> = posable_bones()
-            .iter()
-            .enumerate()
-            .map(|(slot, name)| {
-                let c = rig.index(name).ok_or_else(|| {
-                    FitError::Invalid(format!("the rig has no posable bone `{name}`"))
-                })?;
-                let r = bone_range(name).expect("posable bones have ranges");
-                let range = r.map(|a| a.map(f64::to_radians));
-                let prior = range.map(|[lo, hi]| {
-                    let s = lo.abs().max(hi.abs());
-                    if lo < hi { 1.0 / (s * s) } else { 0.0 }
-                });
-                Ok(Posable {
-                    rig: c,
-                    slot,
-                    range,
-                    prior,
-                })
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let mut frame_bone = vec![false; n_bones];
-        frame_bone[0] = true;
-        for p in &posable {
-            frame_bone[p.rig] = true;
-        }
-        let frame_units: Vec<usize> = (0..N_UNITS)
-            .filter(|&j| unit_joints[j].iter().any(|(c, _, _)| frame_bone[*c]))
-            .collect();
-
-        // Pairs, ancestors.
-        let skin = generator.skin_weights();
-        let unit_terms = |list: &[(u32, f64)]| -> Vec<(u8, V3)> {
-            let mut out = Vec::new();
-            for (j, d) in unit_dense.iter().enumerate() {
-                let mut x = [0.0; 3];
-                for &(r, w) in list {
-                    x = add(x, scale(d[r as usize], w));
-                }
-                if x != [0.0; 3] {
-                    out.push((j as u8, x));
-                }
-            }
-            out
-        };
-        let mut kp = Skinned::default();
-        for (row, name) in anny_rows.iter().zip(&keypoints.names) {
-            let part = skinned_row(row, &rel_of_anny, skin, &parents, &unit_terms);
-            kp.push(keypoint_index(name), part);
-        }
-        let mut row_of_tc = vec![None; N_KEYPOINTS];
-        for (r, k) in kp.rows.iter().enumerate() {
-            if let Some(t) = k.tc {
-                row_of_tc[t] = Some(r);
-            }
-        }
+        let unit_dense = unit_bases(&generator, &rel.kept)?;
+        let unit_joints = unit_joint_moves(&unit_dense, &rel, n_bones);
+        let posable = posable_of(rig)?;
+        let frame_units = frame_units(&posable, &unit_joints, n_bones);
+        let (kp, row_of_tc) = keypoint_model(
+            &anny_rows,
+            &keypoints.names,
+            &rel,
+            generator.skin_weights(),
+            &parents,
+            &unit_dense,
+        );
+        let Relevant {
+            kept: rel_kept,
+            head: head_rel,
+            tail: tail_rel,
+            ..
+        } = rel;
         IkSolver {
             generator,
             map,
@@ -523,27 +416,76 @@ impl IkSolver {
     ) -> Result<IkResult> {
         let t_start = Instant::now();
         targets.validate()?;
-        for (name, v) in [
-            ("pose_prior", config.pose_prior),
-            ("phenotype_prior", config.phenotype_prior),
-            ("face_unit_prior", config.face_unit_prior),
-            ("tolerance", config.tolerance),
-            ("early_prior_scale", config.early_prior_scale),
-        ] {
-            if !v.is_finite() || v < 0.0 {
-                return Err(FitError::Invalid(format!(
-                    "IK config: `{name}` = {v} must be finite and ≥ 0"
-                )));
-            }
-        }
-        let mut template = config.initial_shape.clone().unwrap_or_default();
-        template.validate().map_err(FitError::Invalid)?;
-        for name in IK_PHENOTYPE {
-            if let Some(v) = template.phenotype.get_mut(name) {
-                *v = v.clamp(0.0, 1.0);
-            }
-        }
-        let all_rows: Vec<Row> = targets
+        let template = solve_template(config)?;
+        let all_rows = self.target_rows(targets)?;
+        let fit_units = config.fit_face_units.unwrap_or_else(|| {
+            targets
+                .targets
+                .iter()
+                .any(|t| t.weight > 0.0 && KeypointGroup::of(t.index) == KeypointGroup::Face)
+        });
+        let warm = config.initial_state.is_some();
+        let state = self.initial_state(config, &template, fit_units)?;
+        let grid = self.grid(&template)?;
+        let pm = if points.is_empty() {
+            None
+        } else {
+            Some(self.point_model(points, &template)?)
+        };
+        let ctx0 = Ctx::new(&grid, None);
+        let ctx_points = Ctx::new(&grid, pm.as_ref());
+        let n_points = pm
+            .as_ref()
+            .map_or(0, |m| m.rows.iter().filter(|r| r.weight > 0.0).count());
+        let cur = self.current(state, ctx0);
+        let mut cur = self.initial_placement(cur, targets, warm, ctx0);
+
+        let rows = StageRows::new(&all_rows, targets);
+        let plan = StagePlan {
+            rows: &rows,
+            config,
+            fit_units,
+            warm,
+            ctx0,
+            ctx_points,
+            n_points,
+        };
+        let (stages, iterations) = self.run_stages(&mut cur, &plan);
+
+        // Result meshes from the generator itself.
+        let cost = self.cost(&cur, rows.every(), pm.as_ref(), config);
+        let state = cur.state;
+        let params = self.params(&state, &template);
+        let identity = self.generator.identity(&params.shape)?;
+        let posed_anny = identity.pose(&params.pose);
+        let posed = self.map.map(self.topology, &posed_anny.vertices);
+        let rest = self.map.map(self.topology, identity.rest_vertices());
+        let keypoints = self.set.evaluate(&posed);
+        let (residuals, group_mean_mm) = keypoint_residuals(targets, &all_rows, &keypoints);
+        let point_residual_mm = pm.as_ref().map(|m| point_residual_mm(m, points, &posed));
+        Ok(IkResult {
+            params,
+            state,
+            topology: self.topology,
+            posed,
+            rest,
+            keypoints,
+            residuals,
+            group_mean_mm,
+            iterations,
+            stages,
+            cost,
+            point_residual_mm,
+            seconds: t_start.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// The set row of every target (target order).
+    ///
+    /// # Errors
+    /// [`FitError::Invalid`] for a keypoint the set does not define.
+    fn target_rows(&self, targets: &IkTargets) -> Result<Vec<Row>> {
+        targets
             .targets
             .iter()
             .map(|t| {
@@ -559,13 +501,21 @@ impl IkSolver {
                     weight: t.weight,
                 })
             })
-            .collect::<Result<Vec<_>>>()?;
-        let fit_units = config.fit_face_units.unwrap_or_else(|| {
-            targets
-                .targets
-                .iter()
-                .any(|t| t.weight > 0.0 && KeypointGroup::of(t.index) == KeypointGroup::Face)
-        });
+            .collect()
+    }
+
+    /// The starting state: the warm start of `config` (checked), else the rest pose with the
+    /// shape of `template` (its face units only when they are not fitted).
+    ///
+    /// # Errors
+    /// [`FitError::Invalid`] for a warm start of the wrong size or with a non-finite global
+    /// motion.
+    fn initial_state(
+        &self,
+        config: &IkConfig,
+        template: &ShapeParams,
+        fit_units: bool,
+    ) -> Result<IkState> {
         let n_bones = self.parents.len();
         let warm = config.initial_state.is_some();
         let mut state = match &config.initial_state {
@@ -584,25 +534,25 @@ impl IkSolver {
                 }
                 s.clone()
             }
-            None => IkState::rest(n_bones, &template),
+            None => IkState::rest(n_bones, template),
         };
         if !fit_units && !warm {
             state.face_units = template.facial_actions;
         }
-        let grid = self.grid(&template)?;
-        let pm = if points.is_empty() {
-            None
-        } else {
-            Some(self.point_model(points, &template)?)
-        };
-        let ctx0 = Ctx::new(&grid, None);
-        let ctx_points = Ctx::new(&grid, pm.as_ref());
-        let n_points = pm
-            .as_ref()
-            .map_or(0, |m| m.rows.iter().filter(|r| r.weight > 0.0).count());
-        let mut cur = self.current(state, ctx0);
+        Ok(state)
+    }
 
-        // Initial global motion: Kabsch on the torso keypoints.
+    /// The initial global motion (module docs): weighted Kabsch of the model's torso
+    /// keypoints onto their targets (all body keypoints, then all targets, if fewer than
+    /// three torso targets have weight > 0; a translation of centroids below three points).
+    /// A warm start keeps its global motion.
+    fn initial_placement(
+        &self,
+        cur: Current,
+        targets: &IkTargets,
+        warm: bool,
+        ctx0: Ctx<'_>,
+    ) -> Current {
         let weighted: Vec<&IkTarget> = targets.targets.iter().filter(|t| t.weight > 0.0).collect();
         let pick = |f: &dyn Fn(usize) -> bool| -> Vec<&IkTarget> {
             weighted.iter().copied().filter(|t| f(t.index)).collect()
@@ -637,261 +587,277 @@ impl IkSolver {
             }
             st.translation = d;
         }
-        cur = self.reevaluate(st, &cur, ctx0);
-
-        // Stages.
-        let in_group = |i: usize, lo: usize, hi: usize| (lo..hi).contains(&i);
-        let body_rows: Vec<Row> = all_rows
-            .iter()
-            .zip(&targets.targets)
-            .filter(|(_, t)| {
-                let i = t.index;
-                i < FACE_OFFSET
-                    || (in_group(i, LHAND_OFFSET, RHAND_OFFSET)
-                        && HAND_ROOTS.contains(&(i - LHAND_OFFSET)))
-                    || (i >= RHAND_OFFSET && HAND_ROOTS.contains(&(i - RHAND_OFFSET)))
-                    || (in_group(i, FACE_OFFSET, LHAND_OFFSET)
-                        && FACE_RIGID.contains(&(i - FACE_OFFSET)))
-            })
-            .map(|(r, _)| *r)
-            .filter(|r| r.weight > 0.0)
-            .collect();
-        let torso_rows: Vec<Row> = all_rows
-            .iter()
-            .zip(&targets.targets)
-            .filter(|(r, t)| TORSO_KEYPOINTS.contains(&t.index) && r.weight > 0.0)
-            .map(|(r, _)| *r)
-            .collect();
-        let every_rows: Vec<Row> = all_rows
-            .iter()
-            .copied()
-            .filter(|r| r.weight > 0.0)
-            .collect();
-        let has_face_rows = |rows: &[Row]| {
-            rows.iter().any(|r| {
-                self.kp.rows[r.row]
-                    .tc
-                    .is_some_and(|t| KeypointGroup::of(t) == KeypointGroup::Face)
-            })
-        };
-
-        struct Spec<'r> {
-            name: &'static str,
-            global: bool,
-            bones: &'r dyn Fn(&Posable) -> bool,
-            phen: bool,
-            units: bool,
-            rows: &'r [Row],
-            iters: usize,
-        }
-        let torso_bone = |p: &Posable| {
-            let name = &self.generator.bone_names()[p.rig];
-            TORSO_BONES.contains(&name.as_str())
-        };
-        let body_bone = |p: &Posable| p.slot < LEFT_HAND_SLOT;
-        let hand_face_bone = |p: &Posable| p.slot >= LEFT_HAND_SLOT && p.slot < N_POSABLE;
-        let any_bone = |_: &Posable| true;
-        let specs = [
-            Spec {
-                name: "torso",
-                global: true,
-                bones: &torso_bone,
-                phen: false,
-                units: false,
-                rows: &torso_rows,
-                iters: config.stage_iterations,
-            },
-            Spec {
-                name: "body",
-                global: true,
-                bones: &body_bone,
-                phen: config.fit_phenotype,
-                units: false,
-                rows: &body_rows,
-                iters: config.stage_iterations,
-            },
-            Spec {
-                name: "hands_face",
-                global: false,
-                bones: &hand_face_bone,
-                phen: false,
-                units: fit_units,
-                rows: &every_rows,
-                iters: config.stage_iterations,
-            },
-            Spec {
-                name: "all",
-                global: true,
-                bones: &any_bone,
-                phen: config.fit_phenotype,
-                units: fit_units,
-                rows: &every_rows,
-                iters: config.max_iterations,
-            },
-        ];
-        let mut stages = Vec::new();
-        let mut iterations = 0;
-        for spec in &specs {
-            if spec.rows.is_empty() || spec.iters == 0 || (warm && spec.name != "all") {
-                continue;
-            }
-            let t = Instant::now();
-            // Point targets join the final stage.
-            let ctx = if spec.name == "all" { ctx_points } else { ctx0 };
-            // Bones that influence a stage keypoint (or point).
-            let mut influences = vec![false; n_bones];
-            for r in spec.rows {
-                for &c in &self.kp.rows[r.row].anc {
-                    influences[c] = true;
-                }
-            }
-            if let Some(m) = ctx.pts {
-                for (row, r) in m.sk.rows.iter().zip(&m.rows) {
-                    if r.weight > 0.0 {
-                        for &c in &row.anc {
-                            influences[c] = true;
-                        }
-                    }
-                }
-            }
-            let mut vs = VarSet::new(n_bones);
-            if spec.global {
-                for a in 0..3 {
-                    vs.push(Var::Trans(a));
-                    vs.push(Var::Rot(a));
-                }
-            }
-            for p in &self.posable {
-                if !(spec.bones)(p) || !influences[p.rig] {
-                    continue;
-                }
-                for axis in 0..3 {
-                    let [lo, hi] = p.range[axis];
-                    if lo < hi {
-                        vs.push(Var::Angle {
-                            bone: p.rig,
-                            axis,
-                            lo,
-                            hi,
-                            prior: p.prior[axis],
-                        });
-                    }
-                }
-            }
-            if spec.phen {
-                for i in 0..6 {
-                    vs.push(Var::Phen(i));
-                }
-            }
-            if spec.units && has_face_rows(spec.rows) {
-                for j in 0..N_UNITS {
-                    vs.push(Var::Unit(j));
-                }
-            }
-            if ctx.pts.is_some() && cur.pts.is_none() {
-                cur = self.reevaluate(cur.state.clone(), &cur, ctx);
-            }
-            let cost_before = self.cost(&cur, &every_rows, ctx.pts, config);
-            let scale = if spec.name == "all" {
-                1.0
-            } else {
-                config.early_prior_scale
-            };
-            let stage_config = IkConfig {
-                pose_prior: config.pose_prior * scale,
-                phenotype_prior: config.phenotype_prior * scale,
-                face_unit_prior: config.face_unit_prior * scale,
-                ..config.clone()
-            };
-            let it = if spec.name == "all" && spec.phen && config.phenotype_restart && !warm {
-                // Second start: the same pose from the default phenotype.
-                let mut st = cur.state.clone();
-                st.phenotype = [0.5; 6];
-                let mut other = self.reevaluate(st, &cur, ctx);
-                let (rows, iters) = (spec.rows, spec.iters);
-                let (a, b) = rayon::join(
-                    || self.lm_stage(&mut cur, &vs, rows, &stage_config, ctx, iters),
-                    || self.lm_stage(&mut other, &vs, rows, &stage_config, ctx, iters),
-                );
-                if self.cost(&other, &every_rows, ctx.pts, config)
-                    < self.cost(&cur, &every_rows, ctx.pts, config)
-                {
-                    cur = other;
-                }
-                a + b
-            } else {
-                self.lm_stage(&mut cur, &vs, spec.rows, &stage_config, ctx, spec.iters)
-            };
-            iterations += it;
-            stages.push(IkStageReport {
-                name: spec.name,
-                n_variables: vs.vars.len(),
-                n_targets: spec.rows.len(),
-                n_points: if ctx.pts.is_some() { n_points } else { 0 },
-                iterations: it,
-                cost_before,
-                cost_after: self.cost(&cur, &every_rows, ctx.pts, config),
-                seconds: t.elapsed().as_secs_f64(),
-            });
-        }
-
-        // Result meshes from the generator itself.
-        let cost = self.cost(&cur, &every_rows, pm.as_ref(), config);
-        let state = cur.state;
-        let params = self.params(&state, &template);
-        let identity = self.generator.identity(&params.shape)?;
-        let posed_anny = identity.pose(&params.pose);
-        let posed = self.map.map(self.topology, &posed_anny.vertices);
-        let rest = self.map.map(self.topology, identity.rest_vertices());
-        let keypoints = self.set.evaluate(&posed);
-        let mut sums = [(0.0, 0usize); 4];
-        let residuals: Vec<IkResidual> = targets
-            .targets
-            .iter()
-            .zip(&all_rows)
-            .map(|(t, r)| {
-                let distance = norm(sub(keypoints[r.row], t.position));
-                let g = KeypointGroup::of(t.index);
-                let gi = KeypointGroup::ALL.iter().position(|x| *x == g).unwrap_or(0);
-                sums[gi].0 += distance;
-                sums[gi].1 += 1;
-                IkResidual {
-                    index: t.index,
-                    name: keypoint_names()[t.index].clone(),
-                    distance,
-                    weight: t.weight,
-                }
-            })
-            .collect();
-        let group_mean_mm = sums.map(|(s, n)| (n > 0).then(|| 1e3 * s / n as f64));
-        let point_residual_mm = pm.as_ref().map(|m| {
-            let (mut sum, mut count) = (0.0, 0usize);
-            for (p, r) in points.iter().zip(&m.rows) {
-                if r.weight > 0.0 {
-                    let mut q = [0.0; 3];
-                    for &(v, b) in &p.rows {
-                        q = add(q, scale(posed[v as usize], b));
-                    }
-                    sum += norm(r.proj(sub(q, r.target)));
-                    count += 1;
-                }
-            }
-            1e3 * sum / count.max(1) as f64
-        });
-        Ok(IkResult {
-            params,
-            state,
-            topology: self.topology,
-            posed,
-            rest,
-            keypoints,
-            residuals,
-            group_mean_mm,
-            iterations,
-            stages,
-            cost,
-            point_residual_mm,
-            seconds: t_start.elapsed().as_secs_f64(),
-        })
+        self.reevaluate(st, &cur, ctx0)
     }
+}
+
+/// Checks the numbers of `config` and returns the template shape of the solve: its initial
+/// shape (or the default), the fitted phenotype values clamped to `[0, 1]`.
+///
+/// # Errors
+/// [`FitError::Invalid`] for a negative or non-finite prior or tolerance, or an invalid
+/// initial shape.
+fn solve_template(config: &IkConfig) -> Result<ShapeParams> {
+    for (name, v) in [
+        ("pose_prior", config.pose_prior),
+        ("phenotype_prior", config.phenotype_prior),
+        ("face_unit_prior", config.face_unit_prior),
+        ("tolerance", config.tolerance),
+        ("early_prior_scale", config.early_prior_scale),
+    ] {
+        if !v.is_finite() || v < 0.0 {
+            return Err(FitError::Invalid(format!(
+                "IK config: `{name}` = {v} must be finite and ≥ 0"
+            )));
+        }
+    }
+    let mut template = config.initial_shape.clone().unwrap_or_default();
+    template.validate()?;
+    for name in IK_PHENOTYPE {
+        if let Some(v) = template.phenotype.get_mut(name) {
+            *v = v.clamp(0.0, 1.0);
+        }
+    }
+    Ok(template)
+}
+
+/// One residual per target (target order) on the fitted `keypoints` (set order, `rows` the
+/// targets' set rows) and the mean residual per group in mm.
+fn keypoint_residuals(
+    targets: &IkTargets,
+    rows: &[Row],
+    keypoints: &[V3],
+) -> (Vec<IkResidual>, [Option<f64>; 4]) {
+    let mut sums = [(0.0, 0usize); 4];
+    let residuals: Vec<IkResidual> = targets
+        .targets
+        .iter()
+        .zip(rows)
+        .map(|(t, r)| {
+            let distance = norm(sub(keypoints[r.row], t.position));
+            let g = KeypointGroup::of(t.index);
+            let gi = KeypointGroup::ALL.iter().position(|x| *x == g).unwrap_or(0);
+            sums[gi].0 += distance;
+            sums[gi].1 += 1;
+            IkResidual {
+                index: t.index,
+                name: keypoint_names()[t.index].clone(),
+                distance,
+                weight: t.weight,
+            }
+        })
+        .collect();
+    let group_mean_mm = sums.map(|(s, n)| (n > 0).then(|| 1e3 * s / n as f64));
+    (residuals, group_mean_mm)
+}
+
+/// Mean distance in mm of the point targets with weight > 0 to their points on `posed`
+/// (along the normal for point-to-plane targets).
+fn point_residual_mm(m: &PointModel, points: &[PointTarget], posed: &[V3]) -> f64 {
+    let (mut sum, mut count) = (0.0, 0usize);
+    for (p, r) in points.iter().zip(&m.rows) {
+        if r.weight > 0.0 {
+            let mut q = [0.0; 3];
+            for &(v, b) in &p.rows {
+                q = add(q, scale(posed[v as usize], b));
+            }
+            sum += norm(r.proj(sub(q, r.target)));
+            count += 1;
+        }
+    }
+    1e3 * sum / count.max(1) as f64
+}
+
+/// The relevant vertices of a solver: the kept vertices (of the generator) whose rest
+/// positions it needs — the vertices of the keypoint rows and of the joint regressors — in
+/// the order they are first met.
+struct Relevant {
+    /// Kept-vertex index per relevant vertex.
+    kept: Vec<u32>,
+    /// Per bone, the relevant indices of its head's regressor vertices.
+    head: Vec<Vec<u32>>,
+    /// Per bone, the relevant indices of its tail's regressor vertices.
+    tail: Vec<Vec<u32>>,
+    /// `(Anny output vertex, relevant index)` of the keypoint rows' vertices, ascending.
+    anny: Vec<(u32, u32)>,
+}
+
+impl Relevant {
+    /// The relevant vertices of keypoint rows `anny_rows` (over Anny output vertices) and
+    /// of the rig's joint regressors.
+    fn new(generator: &Generator, anny_rows: &[Vec<(u32, f64)>]) -> Relevant {
+        let rig = generator.rig();
+        let kob = generator.kept_of_base();
+        let out_base = generator.output_vertices();
+        let n_kept = generator.kept_vertices().len();
+        let mut rel_of_kept = vec![u32::MAX; n_kept];
+        let mut rel_kept: Vec<u32> = Vec::new();
+        let mut rel = |kept: u32| -> u32 {
+            let slot = &mut rel_of_kept[kept as usize];
+            if *slot == u32::MAX {
+                *slot = rel_kept.len() as u32;
+                rel_kept.push(kept);
+            }
+            *slot
+        };
+        let mut anny_rel: Vec<(u32, u32)> = Vec::new();
+        for row in anny_rows {
+            for &(a, _) in row {
+                let k = kob[out_base[a as usize] as usize];
+                anny_rel.push((a, rel(k)));
+            }
+        }
+        let to_rel = |vs: &[u32], rel: &mut dyn FnMut(u32) -> u32| -> Vec<u32> {
+            vs.iter().map(|&b| rel(kob[b as usize])).collect()
+        };
+        let head_rel: Vec<Vec<u32>> = rig
+            .bones
+            .iter()
+            .map(|b| to_rel(&b.head_vertices, &mut rel))
+            .collect();
+        let tail_rel: Vec<Vec<u32>> = rig
+            .bones
+            .iter()
+            .map(|b| to_rel(&b.tail_vertices, &mut rel))
+            .collect();
+        anny_rel.sort_unstable();
+        anny_rel.dedup();
+        Relevant {
+            kept: rel_kept,
+            head: head_rel,
+            tail: tail_rel,
+            anny: anny_rel,
+        }
+    }
+
+    /// The relevant index of Anny output vertex `a` of a keypoint row.
+    fn of_anny(&self, a: u32) -> u32 {
+        let i = self
+            .anny
+            .binary_search_by_key(&a, |e| e.0)
+            .expect("touched vertex");
+        self.anny[i].1
+    }
+}
+
+/// The face units' displacements `B_j = rest(f = e_j) − rest(0)` at the relevant vertices
+/// `rel_kept` (53 rest meshes of the generator, in parallel).
+fn unit_bases(generator: &Generator, rel_kept: &[u32]) -> Result<Vec<Vec<V3>>> {
+    let default = ShapeParams::default();
+    let rest0 = generator.rest_mesh(&default)?;
+    (0..N_UNITS)
+        .into_par_iter()
+        .map(|j| -> Result<Vec<V3>> {
+            let mut s = default.clone();
+            s.facial_actions[j] = 1.0;
+            let r = generator.rest_mesh(&s)?;
+            Ok(rel_kept
+                .iter()
+                .map(|&k| sub(r[k as usize], rest0[k as usize]))
+                .collect())
+        })
+        .collect::<Result<Vec<_>>>()
+}
+
+/// Per face unit, `(bone, Δhead, Δtail)` of every joint it moves (unit value 1).
+fn unit_joint_moves(
+    unit_dense: &[Vec<V3>],
+    rel: &Relevant,
+    n_bones: usize,
+) -> Vec<Vec<(usize, V3, V3)>> {
+    unit_dense
+        .iter()
+        .map(|d| {
+            (0..n_bones)
+                .filter_map(|c| {
+                    let dh = rel_mean(&rel.head[c], d);
+                    let dt = rel_mean(&rel.tail[c], d);
+                    (dh != [0.0; 3] || dt != [0.0; 3]).then_some((c, dh, dt))
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// The posable bones of the sampler in `rig`, with their ranges in radians and prior
+/// factors.
+///
+/// # Errors
+/// [`FitError::Invalid`] if the rig lacks a posable bone.
+fn posable_of(rig: &panoman_human::rig::Rig) -> Result<Vec<Posable>> {
+    posable_bones()
+        .iter()
+        .enumerate()
+        .map(|(slot, name)| {
+            let c = rig.index(name).ok_or_else(|| {
+                FitError::Invalid(format!("the rig has no posable bone `{name}`"))
+            })?;
+            let r = bone_range(name).expect("posable bones have ranges");
+            let range = r.map(|a| a.map(f64::to_radians));
+            let prior = range.map(|[lo, hi]| {
+                let s = lo.abs().max(hi.abs());
+                if lo < hi { 1.0 / (s * s) } else { 0.0 }
+            });
+            Ok(Posable {
+                rig: c,
+                slot,
+                range,
+                prior,
+            })
+        })
+        .collect::<Result<Vec<_>>>()
+}
+
+/// The face units whose joint motion changes the frame of a posable bone or the root.
+fn frame_units(
+    posable: &[Posable],
+    unit_joints: &[Vec<(usize, V3, V3)>],
+    n_bones: usize,
+) -> Vec<usize> {
+    let mut frame_bone = vec![false; n_bones];
+    frame_bone[0] = true;
+    for p in posable {
+        frame_bone[p.rig] = true;
+    }
+    (0..N_UNITS)
+        .filter(|&j| unit_joints[j].iter().any(|(c, _, _)| frame_bone[*c]))
+        .collect()
+}
+
+/// The skinned model of the keypoint rows (pairs, ancestors, face-unit terms from the unit
+/// bases `unit_dense`) and the set row of every TC-127 keypoint.
+fn keypoint_model(
+    anny_rows: &[Vec<(u32, f64)>],
+    names: &[String],
+    rel: &Relevant,
+    skin: &SkinWeights,
+    parents: &[Option<usize>],
+    unit_dense: &[Vec<V3>],
+) -> (Skinned, Vec<Option<usize>>) {
+    let unit_terms = |list: &[(u32, f64)]| -> Vec<(u8, V3)> {
+        let mut out = Vec::new();
+        for (j, d) in unit_dense.iter().enumerate() {
+            let mut x = [0.0; 3];
+            for &(r, w) in list {
+                x = add(x, scale(d[r as usize], w));
+            }
+            if x != [0.0; 3] {
+                out.push((j as u8, x));
+            }
+        }
+        out
+    };
+    let rel_of_anny = |a: u32| rel.of_anny(a);
+    let mut kp = Skinned::default();
+    for (row, name) in anny_rows.iter().zip(names) {
+        let part = skinned_row(row, &rel_of_anny, skin, parents, &unit_terms);
+        kp.push(keypoint_index(name), part);
+    }
+    let mut row_of_tc = vec![None; N_KEYPOINTS];
+    for (r, k) in kp.rows.iter().enumerate() {
+        if let Some(t) = k.tc {
+            row_of_tc[t] = Some(r);
+        }
+    }
+    (kp, row_of_tc)
 }
