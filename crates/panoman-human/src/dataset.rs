@@ -675,18 +675,7 @@ impl Dataset {
                 .map_err(|e| jerr(format!("`split.{key}`: {e}")))
         };
         let (train, held_out) = (ids("train")?, ids("held_out")?);
-        let mut seen = vec![0u8; n_id];
-        for &i in train.iter().chain(&held_out) {
-            let s = seen
-                .get_mut(i as usize)
-                .ok_or_else(|| jerr(format!("split names identity {i} of {n_id}")))?;
-            *s += 1;
-        }
-        if seen.iter().any(|&s| s != 1) {
-            return Err(jerr(
-                "train and held-out identities must partition the identities".into(),
-            ));
-        }
+        check_split(&train, &held_out, n_id).map_err(jerr)?;
 
         // Header.
         let file = File::open(&tpath).map_err(|e| HumanError::io(&tpath, e))?;
@@ -813,30 +802,7 @@ impl Dataset {
         let identity = u32s(read_at(&mut f, "identity")?);
         let rest_of = u32s(read_at(&mut f, "rest_of")?);
         let kind = read_at(&mut f, "kind")?;
-        let mut counts = [0usize; 4];
-        for row in 0..n {
-            let k = kind[row];
-            if k > 3 {
-                return Err(terr(format!("row {row}: kind {k} is not 0..=3")));
-            }
-            counts[k as usize] += 1;
-            if identity[row] as usize >= n_id {
-                return Err(terr(format!(
-                    "row {row}: identity {} of {n_id}",
-                    identity[row]
-                )));
-            }
-            let ro = rest_of[row] as usize;
-            if ro >= n || kind[ro] != KIND_REST || identity[ro] != identity[row] {
-                return Err(terr(format!(
-                    "row {row}: rest_of {ro} is not a rest row of identity {}",
-                    identity[row]
-                )));
-            }
-            if k == KIND_REST && ro != row {
-                return Err(terr(format!("rest row {row} has rest_of {ro}")));
-            }
-        }
+        let counts = check_rows(&kind, &identity, &rest_of, n_id).map_err(terr)?;
         for (k, name) in KIND_NAMES.iter().enumerate() {
             if meta["counts"][name].as_u64() != Some(counts[k] as u64) {
                 return Err(jerr(format!(
@@ -925,4 +891,52 @@ impl Dataset {
         }
         c
     }
+}
+
+/// Checks that the train and held-out identities partition `0..n_id`.
+fn check_split(train: &[u32], held_out: &[u32], n_id: usize) -> std::result::Result<(), String> {
+    let mut seen = vec![0u8; n_id];
+    for &i in train.iter().chain(held_out) {
+        let s = seen
+            .get_mut(i as usize)
+            .ok_or_else(|| format!("split names identity {i} of {n_id}"))?;
+        *s += 1;
+    }
+    if seen.iter().any(|&s| s != 1) {
+        return Err("train and held-out identities must partition the identities".into());
+    }
+    Ok(())
+}
+
+/// Checks the per-row tensors (kinds in 0..=3, identities below `n_id`, `rest_of` pointing
+/// at a rest row of the same identity) and returns the number of rows per kind.
+fn check_rows(
+    kind: &[u8],
+    identity: &[u32],
+    rest_of: &[u32],
+    n_id: usize,
+) -> std::result::Result<[usize; 4], String> {
+    let mut counts = [0usize; 4];
+    let n = kind.len();
+    for row in 0..n {
+        let k = kind[row];
+        if k > 3 {
+            return Err(format!("row {row}: kind {k} is not 0..=3"));
+        }
+        counts[k as usize] += 1;
+        if identity[row] as usize >= n_id {
+            return Err(format!("row {row}: identity {} of {n_id}", identity[row]));
+        }
+        let ro = rest_of[row] as usize;
+        if ro >= n || kind[ro] != KIND_REST || identity[ro] != identity[row] {
+            return Err(format!(
+                "row {row}: rest_of {ro} is not a rest row of identity {}",
+                identity[row]
+            ));
+        }
+        if k == KIND_REST && ro != row {
+            return Err(format!("rest row {row} has rest_of {ro}"));
+        }
+    }
+    Ok(counts)
 }
