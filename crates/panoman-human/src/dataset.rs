@@ -714,40 +714,7 @@ impl Dataset {
                 "topology hash {st_hash:?} differs from {JSON_FILE}'s {hash}"
             )));
         }
-        let p = 3 * theta_bones.len();
-        let expect = [
-            ("vertices", safetensors::Dtype::F32, vec![n, n_v, 3]),
-            ("theta", safetensors::Dtype::F32, vec![n, p]),
-            ("phenotype", safetensors::Dtype::F32, vec![n, 6]),
-            ("face_units", safetensors::Dtype::F32, vec![n, 52]),
-            ("identity", safetensors::Dtype::U32, vec![n]),
-            ("rest_of", safetensors::Dtype::U32, vec![n]),
-            ("kind", safetensors::Dtype::U8, vec![n]),
-        ];
-        if md.tensors().len() != expect.len() {
-            return Err(terr(format!(
-                "{} tensors, expected {}",
-                md.tensors().len(),
-                expect.len()
-            )));
-        }
-        let data0 = 8 + hlen;
-        let mut offsets = std::collections::BTreeMap::new();
-        for (name, dtype, shape) in &expect {
-            let info = md
-                .info(name)
-                .ok_or_else(|| terr(format!("missing tensor `{name}`")))?;
-            if info.dtype != *dtype || info.shape != *shape {
-                return Err(terr(format!(
-                    "tensor `{name}` is {:?} {:?}, expected {dtype:?} {shape:?}",
-                    info.dtype, info.shape
-                )));
-            }
-            offsets.insert(
-                *name,
-                (data0 + info.data_offsets.0 as u64, info.data_offsets),
-            );
-        }
+        let offsets = tensor_offsets(&md, 8 + hlen, n, n_v, 3 * theta_bones.len()).map_err(terr)?;
 
         // Tensors: stream the vertices (finiteness), read the rest.
         let mut f = r.into_inner();
@@ -891,6 +858,51 @@ impl Dataset {
         }
         c
     }
+}
+
+/// The byte ranges `(absolute start, data offsets)` of the seven dataset tensors in a
+/// safetensors file whose data section starts at `data0`, checked against the dtypes and
+/// shapes of `n` rows of `n_v` vertices and `p` pose values.
+fn tensor_offsets(
+    md: &safetensors::tensor::Metadata,
+    data0: u64,
+    n: usize,
+    n_v: usize,
+    p: usize,
+) -> std::result::Result<std::collections::BTreeMap<&'static str, (u64, (usize, usize))>, String> {
+    let expect = [
+        ("vertices", safetensors::Dtype::F32, vec![n, n_v, 3]),
+        ("theta", safetensors::Dtype::F32, vec![n, p]),
+        ("phenotype", safetensors::Dtype::F32, vec![n, 6]),
+        ("face_units", safetensors::Dtype::F32, vec![n, 52]),
+        ("identity", safetensors::Dtype::U32, vec![n]),
+        ("rest_of", safetensors::Dtype::U32, vec![n]),
+        ("kind", safetensors::Dtype::U8, vec![n]),
+    ];
+    if md.tensors().len() != expect.len() {
+        return Err(format!(
+            "{} tensors, expected {}",
+            md.tensors().len(),
+            expect.len()
+        ));
+    }
+    let mut offsets = std::collections::BTreeMap::new();
+    for (name, dtype, shape) in &expect {
+        let info = md
+            .info(name)
+            .ok_or_else(|| format!("missing tensor `{name}`"))?;
+        if info.dtype != *dtype || info.shape != *shape {
+            return Err(format!(
+                "tensor `{name}` is {:?} {:?}, expected {dtype:?} {shape:?}",
+                info.dtype, info.shape
+            ));
+        }
+        offsets.insert(
+            *name,
+            (data0 + info.data_offsets.0 as u64, info.data_offsets),
+        );
+    }
+    Ok(offsets)
 }
 
 /// Checks that the train and held-out identities partition `0..n_id`.

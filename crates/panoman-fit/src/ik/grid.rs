@@ -1,3 +1,7 @@
+//! The phenotype grids: rest quantities at the 288 anchor points of the phenotype hat
+//! functions, per keypoint pair ([`PhenGrid`]) and per vertex for point targets
+//! ([`VertexGrid`]), with their exact multilinear interpolation.
+
 use super::solver::{IkSolver, rel_mean};
 use super::{IK_PHENOTYPE, N_UNITS};
 use crate::error::Result;

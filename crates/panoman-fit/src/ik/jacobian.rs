@@ -1,3 +1,6 @@
+//! The Jacobian of the keypoints and point targets: analytic for the global motion, bone
+//! angles and face units, from the grid for the phenotype, plus the rest frames' part.
+
 use super::grid::{PhenColumn, PhenGrid, on_kink};
 use super::keypoint_model::{Ctx, Current, Kin, PointModel, Skinned, pair_sums, pair_term};
 use super::lm::{Row, Var, VarSet};

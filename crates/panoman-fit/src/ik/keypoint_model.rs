@@ -1,15 +1,25 @@
-use super::grid::{PhenGrid, VertexGrid, corner_weights};
-use super::solver::IkSolver;
-use super::targets::PointTarget;
-use super::{IkState, N_UNITS};
-use crate::error::{FitError, Result};
+//! The solver's precomputed model: skinned linear rows (keypoints of the set, point targets)
+//! collapsed per bone into pairs, their evaluation, and how the keypoint model of a solver is
+//! built (relevant vertices, face-unit bases, posable bones).
+
+use std::sync::Arc;
+
+use panoman_human::generator::Generator;
+use panoman_human::keypoints::{N_KEYPOINTS, keypoint_index};
 use panoman_human::outputs::{OutputTopology, TopologyMap};
 use panoman_human::params::ShapeParams;
 use panoman_human::rig::Affine;
+use panoman_human::sampling::{bone_range, posable_bones};
 use panoman_human::skinning::SkinWeights;
-use panoman_mesh::geom::{M3, V3, add, dot, matvec, norm, scale};
+use panoman_mesh::geom::{M3, V3, add, dot, matvec, norm, scale, sub};
 use rayon::prelude::*;
-use std::sync::Arc;
+
+use super::grid::{PhenGrid, VertexGrid, corner_weights};
+use super::solver::{IkSolver, rel_mean};
+use super::targets::PointTarget;
+use super::{IkState, N_UNITS};
+use crate::error::{FitError, Result};
+
 /// A (keypoint, bone) term `M_b X_kb + σ_kb t_b`.
 #[derive(Clone, Debug)]
 pub(super) struct Pair {
@@ -478,4 +488,198 @@ impl IkSolver {
             grid,
         })
     }
+}
+
+/// The relevant vertices of a solver: the kept vertices (of the generator) whose rest
+/// positions it needs — the vertices of the keypoint rows and of the joint regressors — in
+/// the order they are first met.
+pub(super) struct Relevant {
+    /// Kept-vertex index per relevant vertex.
+    pub(super) kept: Vec<u32>,
+    /// Per bone, the relevant indices of its head's regressor vertices.
+    pub(super) head: Vec<Vec<u32>>,
+    /// Per bone, the relevant indices of its tail's regressor vertices.
+    pub(super) tail: Vec<Vec<u32>>,
+    /// `(Anny output vertex, relevant index)` of the keypoint rows' vertices, ascending.
+    pub(super) anny: Vec<(u32, u32)>,
+}
+
+impl Relevant {
+    /// The relevant vertices of keypoint rows `anny_rows` (over Anny output vertices) and
+    /// of the rig's joint regressors.
+    pub(super) fn new(generator: &Generator, anny_rows: &[Vec<(u32, f64)>]) -> Relevant {
+        let rig = generator.rig();
+        let kob = generator.kept_of_base();
+        let out_base = generator.output_vertices();
+        let n_kept = generator.kept_vertices().len();
+        let mut rel_of_kept = vec![u32::MAX; n_kept];
+        let mut rel_kept: Vec<u32> = Vec::new();
+        let mut rel = |kept: u32| -> u32 {
+            let slot = &mut rel_of_kept[kept as usize];
+            if *slot == u32::MAX {
+                *slot = rel_kept.len() as u32;
+                rel_kept.push(kept);
+            }
+            *slot
+        };
+        let mut anny_rel: Vec<(u32, u32)> = Vec::new();
+        for row in anny_rows {
+            for &(a, _) in row {
+                let k = kob[out_base[a as usize] as usize];
+                anny_rel.push((a, rel(k)));
+            }
+        }
+        let to_rel = |vs: &[u32], rel: &mut dyn FnMut(u32) -> u32| -> Vec<u32> {
+            vs.iter().map(|&b| rel(kob[b as usize])).collect()
+        };
+        let head_rel: Vec<Vec<u32>> = rig
+            .bones
+            .iter()
+            .map(|b| to_rel(&b.head_vertices, &mut rel))
+            .collect();
+        let tail_rel: Vec<Vec<u32>> = rig
+            .bones
+            .iter()
+            .map(|b| to_rel(&b.tail_vertices, &mut rel))
+            .collect();
+        anny_rel.sort_unstable();
+        anny_rel.dedup();
+        Relevant {
+            kept: rel_kept,
+            head: head_rel,
+            tail: tail_rel,
+            anny: anny_rel,
+        }
+    }
+
+    /// The relevant index of Anny output vertex `a` of a keypoint row.
+    pub(super) fn of_anny(&self, a: u32) -> u32 {
+        let i = self
+            .anny
+            .binary_search_by_key(&a, |e| e.0)
+            .expect("touched vertex");
+        self.anny[i].1
+    }
+}
+
+/// The face units' displacements `B_j = rest(f = e_j) − rest(0)` at the relevant vertices
+/// `rel_kept` (53 rest meshes of the generator, in parallel).
+pub(super) fn unit_bases(generator: &Generator, rel_kept: &[u32]) -> Result<Vec<Vec<V3>>> {
+    let default = ShapeParams::default();
+    let rest0 = generator.rest_mesh(&default)?;
+    (0..N_UNITS)
+        .into_par_iter()
+        .map(|j| -> Result<Vec<V3>> {
+            let mut s = default.clone();
+            s.facial_actions[j] = 1.0;
+            let r = generator.rest_mesh(&s)?;
+            Ok(rel_kept
+                .iter()
+                .map(|&k| sub(r[k as usize], rest0[k as usize]))
+                .collect())
+        })
+        .collect::<Result<Vec<_>>>()
+}
+
+/// Per face unit, `(bone, Δhead, Δtail)` of every joint it moves (unit value 1).
+pub(super) fn unit_joint_moves(
+    unit_dense: &[Vec<V3>],
+    rel: &Relevant,
+    n_bones: usize,
+) -> Vec<Vec<(usize, V3, V3)>> {
+    unit_dense
+        .iter()
+        .map(|d| {
+            (0..n_bones)
+                .filter_map(|c| {
+                    let dh = rel_mean(&rel.head[c], d);
+                    let dt = rel_mean(&rel.tail[c], d);
+                    (dh != [0.0; 3] || dt != [0.0; 3]).then_some((c, dh, dt))
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// The posable bones of the sampler in `rig`, with their ranges in radians and prior
+/// factors.
+///
+/// # Errors
+/// [`FitError::Invalid`] if the rig lacks a posable bone.
+pub(super) fn posable_of(rig: &panoman_human::rig::Rig) -> Result<Vec<Posable>> {
+    posable_bones()
+        .iter()
+        .enumerate()
+        .map(|(slot, name)| {
+            let c = rig.index(name).ok_or_else(|| {
+                FitError::Invalid(format!("the rig has no posable bone `{name}`"))
+            })?;
+            let r = bone_range(name).expect("posable bones have ranges");
+            let range = r.map(|a| a.map(f64::to_radians));
+            let prior = range.map(|[lo, hi]| {
+                let s = lo.abs().max(hi.abs());
+                if lo < hi { 1.0 / (s * s) } else { 0.0 }
+            });
+            Ok(Posable {
+                rig: c,
+                slot,
+                range,
+                prior,
+            })
+        })
+        .collect::<Result<Vec<_>>>()
+}
+
+/// The face units whose joint motion changes the frame of a posable bone or the root.
+pub(super) fn frame_units(
+    posable: &[Posable],
+    unit_joints: &[Vec<(usize, V3, V3)>],
+    n_bones: usize,
+) -> Vec<usize> {
+    let mut frame_bone = vec![false; n_bones];
+    frame_bone[0] = true;
+    for p in posable {
+        frame_bone[p.rig] = true;
+    }
+    (0..N_UNITS)
+        .filter(|&j| unit_joints[j].iter().any(|(c, _, _)| frame_bone[*c]))
+        .collect()
+}
+
+/// The skinned model of the keypoint rows (pairs, ancestors, face-unit terms from the unit
+/// bases `unit_dense`) and the set row of every TC-127 keypoint.
+pub(super) fn skinned_keypoints(
+    anny_rows: &[Vec<(u32, f64)>],
+    names: &[String],
+    rel: &Relevant,
+    skin: &SkinWeights,
+    parents: &[Option<usize>],
+    unit_dense: &[Vec<V3>],
+) -> (Skinned, Vec<Option<usize>>) {
+    let unit_terms = |list: &[(u32, f64)]| -> Vec<(u8, V3)> {
+        let mut out = Vec::new();
+        for (j, d) in unit_dense.iter().enumerate() {
+            let mut x = [0.0; 3];
+            for &(r, w) in list {
+                x = add(x, scale(d[r as usize], w));
+            }
+            if x != [0.0; 3] {
+                out.push((j as u8, x));
+            }
+        }
+        out
+    };
+    let rel_of_anny = |a: u32| rel.of_anny(a);
+    let mut kp = Skinned::default();
+    for (row, name) in anny_rows.iter().zip(names) {
+        let part = skinned_row(row, &rel_of_anny, skin, parents, &unit_terms);
+        kp.push(keypoint_index(name), part);
+    }
+    let mut row_of_tc = vec![None; N_KEYPOINTS];
+    for (r, k) in kp.rows.iter().enumerate() {
+        if let Some(t) = k.tc {
+            row_of_tc[t] = Some(r);
+        }
+    }
+    (kp, row_of_tc)
 }

@@ -1,3 +1,6 @@
+//! The projected Levenberg–Marquardt iteration: variables, normal equations, objective,
+//! the damped step with its active set (dense Cholesky by faer).
+
 use super::grid::phen_cell;
 use faer::linalg::solvers::Solve;
 

@@ -1,3 +1,5 @@
+//! Target keypoints and surface point targets of the solve.
+
 use crate::error::{FitError, Result};
 use panoman_human::keypoints::{
     KeypointGroup, KeypointsFile, N_KEYPOINTS, keypoint_index, keypoint_names,
