@@ -726,16 +726,6 @@ impl Dataset {
                 .map_err(|e| HumanError::io(&tpath, e))?;
             Ok(buf)
         };
-        let f32s = |b: Vec<u8>| -> Vec<f32> {
-            b.chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect()
-        };
-        let u32s = |b: Vec<u8>| -> Vec<u32> {
-            b.chunks_exact(4)
-                .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect()
-        };
         let (vstart, _) = offsets["vertices"];
         {
             f.seek(SeekFrom::Start(vstart))
@@ -754,9 +744,9 @@ impl Dataset {
                 }
             }
         }
-        let theta = f32s(read_at(&mut f, "theta")?);
-        let phenotype = f32s(read_at(&mut f, "phenotype")?);
-        let face_units = f32s(read_at(&mut f, "face_units")?);
+        let theta = le_f32s(read_at(&mut f, "theta")?);
+        let phenotype = le_f32s(read_at(&mut f, "phenotype")?);
+        let face_units = le_f32s(read_at(&mut f, "face_units")?);
         for (name, v) in [
             ("theta", &theta),
             ("phenotype", &phenotype),
@@ -766,8 +756,8 @@ impl Dataset {
                 return Err(terr(format!("tensor `{name}`: non-finite value at {k}")));
             }
         }
-        let identity = u32s(read_at(&mut f, "identity")?);
-        let rest_of = u32s(read_at(&mut f, "rest_of")?);
+        let identity = le_u32s(read_at(&mut f, "identity")?);
+        let rest_of = le_u32s(read_at(&mut f, "rest_of")?);
         let kind = read_at(&mut f, "kind")?;
         let counts = check_rows(&kind, &identity, &rest_of, n_id).map_err(terr)?;
         for (k, name) in KIND_NAMES.iter().enumerate() {
@@ -858,6 +848,20 @@ impl Dataset {
         }
         c
     }
+}
+
+/// Little-endian `f32` values of `b`.
+fn le_f32s(b: Vec<u8>) -> Vec<f32> {
+    b.chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+/// Little-endian `u32` values of `b`.
+fn le_u32s(b: Vec<u8>) -> Vec<u32> {
+    b.chunks_exact(4)
+        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
 }
 
 /// The byte ranges `(absolute start, data offsets)` of the seven dataset tensors in a
