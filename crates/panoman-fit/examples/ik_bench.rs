@@ -5,7 +5,7 @@
 //! against the truth per part (body / face / left hand / right hand).
 //!
 //! ```sh
-//! cargo run --release -p panoman-human --example ik_bench [-- N [full|small] [known-shape]]
+//! cargo run --release -p panoman-fit --example ik_bench [-- N [full|small] [known-shape]]
 //! ```
 //!
 //! `known-shape` gives the solver the true shape (phenotype and face units as the start, the

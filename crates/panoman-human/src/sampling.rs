@@ -474,7 +474,7 @@ pub fn posable_bones() -> Vec<String> {
 }
 
 /// Twist limits (degrees, Y) of the `*02` limb bones, chosen from the measured volume loss
-/// of the LBS skin (`tests/sampling.rs`, `twist_volume_loss`; default and adult identity).
+/// of the LBS skin (the example `sampling_measurements twist`; default and adult identity).
 ///
 /// LBS twist shrinks the limb where the `*01`/`*02` weights blend (the "candy wrapper"); the
 /// worst cross-section radius loss grows like `1 − cos(θ/2)`: about −1.5 % at 20°, −3.1 to

@@ -293,7 +293,7 @@ fn sampled_rows_pose_cleanly() {
             assert!(full.iter().flatten().all(|x| x.is_finite()));
             let v = measure::enclosed_volume(&TriMesh::new(full, faces.clone()));
             // LBS bends lose volume (hip flexion −90°: −2.4 %, spine flexion 12° on one
-            // bone: −1 %; see `joint_volume_report`): sitting poses reach about −9 %.
+            // bone: −1 %; see the example `sampling_measurements joints`): sitting poses reach about −9 %.
             assert!(((v - v0) / v0).abs() < 0.12, "volume {v} vs rest {v0}");
         }
     }
