@@ -51,10 +51,10 @@ fn held_out(data: &Path, n: usize) -> Vec<(Vec<V3>, Vec<V3>)> {
 /// One cold fit with the default IK and fit options.
 fn cold_fit(
     rig: &Rig,
-    ik: &panoman_human::ik::IkSolver,
+    ik: &panoman_fit::ik::IkSolver,
     fitter: &mut Fitter,
     c: &Constraints,
-) -> panoman_fit::Result<(panoman_human::ik::IkResult, panoman_fit::FitResult)> {
+) -> panoman_fit::Result<(panoman_fit::ik::IkResult, panoman_fit::FitResult)> {
     fit_frame(
         rig,
         ik,

@@ -23,11 +23,11 @@
 //! keypoint-only IK results (for bitwise comparisons of the solver).
 use panoman_fit::fit::FitOptions;
 use panoman_fit::icp::{VertexFaces, correspondences_on};
+use panoman_fit::ik::{IkConfig, IkTargets, PointTarget};
 use panoman_fit::{
     Constraints, Fitter, IkIcpOptions, Rig, fit_frame, ik_config_for_noise, ik_fit, ik_icp, init_of,
 };
 use panoman_human::dataset::Dataset;
-use panoman_human::ik::{IkConfig, IkTargets, PointTarget};
 use panoman_human::keypoints::KeypointsFile;
 use panoman_mesh::geom::{V3, cross, norm, sub};
 use panoman_model::model::PanoManModel;

@@ -9,9 +9,9 @@
 //! [`Sequence`] (cold first frame, warm-started frames after it), and prints the median, min and
 //! max time per stage over the warm frames, and the mean per-vertex error (mm) of PanoMan and of
 //! the warm-started LBS rig (IK alone) against the truth.
+use panoman_fit::ik::{IkConfig, IkState};
 use panoman_fit::{Constraints, Fitter, Rig, Sequence, ik_fit};
 use panoman_human::clip::{Clip, ClipConfig};
-use panoman_human::ik::{IkConfig, IkState};
 use panoman_human::keypoints::KeypointsFile;
 use panoman_mesh::geom::{V3, norm, sub};
 use panoman_model::model::PanoManModel;

@@ -445,7 +445,7 @@ impl Fitter {
             }
         }
         if let Some(f) = &c.fixed {
-            f.validate(&self.model).map_err(FitError::Invalid)?;
+            f.validate(&self.model)?;
         }
         if let Some(m) = &c.motion {
             if self.model.motion.is_none() {
@@ -472,9 +472,7 @@ impl Fitter {
                     )));
                 }
             }
-            prev.params
-                .validate(&self.model)
-                .map_err(FitError::Invalid)?;
+            prev.params.validate(&self.model)?;
         }
         Ok(())
     }
@@ -729,81 +727,20 @@ impl Fitter {
             stages.push(StageReport::of_solve("torso", t, &rep, None));
         }
         // Stage 2: all keypoints, alternating V- and β-steps.
-        {
-            let t = Instant::now();
-            let mut its = 0;
-            let mut acc = 0;
-            let (mut e0, mut e1) = (0.0, 0.0);
-            for sweep in 0..opts.sweeps.max(1) {
-                if sweep > 0 {
-                    self.beta_step(&x, &rg, &mut params, c, opts)?;
-                }
-                let mut targets = self.guidance(&params, &rg, &x, opts)?;
-                self.constraint_targets(&mut targets, &all_kp, c, &init.posed, opts);
-                let rep = self.v_step(&targets, &mut x, opts.step_iterations, opts)?;
-                its += rep.iterations;
-                acc += rep.accepted;
-                e0 = rep.energies[0];
-                e1 = *rep.energies.last().unwrap_or(&0.0);
-            }
-            stages.push(StageReport {
-                name: "keypoints".into(),
-                seconds: t.elapsed().as_secs_f64(),
-                iterations: its,
-                accepted: acc,
-                energy_start: e0,
-                energy_end: e1,
-                matches: None,
-            });
-        }
+        let pass = StagePass {
+            rg: &rg,
+            c,
+            init,
+            kp: &all_kp,
+            opts,
+        };
+        stages.push(self.keypoint_stage(&pass, &mut x, &mut params)?);
         // Stage 3: ICP.
-        if let Some((pts, nrm)) = &c.points {
-            let l2 = self.mean_edge * self.mean_edge;
-            for pass in 0..opts.icp_passes {
-                let t = Instant::now();
-                self.beta_step(&x, &rg, &mut params, c, opts)?;
-                let mut targets = self.guidance(&params, &rg, &x, opts)?;
-                self.constraint_targets(&mut targets, &all_kp, c, &init.posed, opts);
-                let (cons, stats) = correspondences_on(
-                    &self.ev.topology().faces,
-                    &self.vf,
-                    &x,
-                    pts,
-                    nrm.as_deref(),
-                    opts.icp_weight / l2,
-                    &opts.icp,
-                );
-                targets.points.extend(cons);
-                let rep = self.v_step(&targets, &mut x, opts.step_iterations, opts)?;
-                stages.push(StageReport::of_solve(
-                    format!("icp{}", pass + 1),
-                    t,
-                    &rep,
-                    Some(stats),
-                ));
-            }
-        }
+        stages.extend(self.icp_stages(&pass, &mut x, &mut params)?);
         // Final parameters and the rigid motion placing B_P(α, β) on the fit.
         let t = Instant::now();
         self.beta_step(&x, &rg, &mut params, c, opts)?;
-        let placement = match (&c.previous, opts.placement) {
-            (Some(prev), Placement::Propagated) => {
-                // The torso patch's rigid motion since the previous frame, applied to the
-                // previous placement.
-                let k = rigid_align(&prev.vertices, &x, Some(&self.torso_weights));
-                let r0 = axis_angle_matrix(prev.params.rotation);
-                Rigid {
-                    r: matmul(&k.r, &r0),
-                    t: add(matvec(&k.r, prev.params.translation), k.t),
-                }
-            }
-            _ => {
-                params.rotation = [0.0; 3];
-                params.translation = [0.0; 3];
-                let guide = self.ev.pose(&params, opts.correction)?;
-                rigid_align(&guide, &x, None)
-            }
-        };
+        let placement = self.placement(c, &x, &mut params, opts)?;
         params.rotation = rotation_vector(&placement.r);
         params.translation = placement.t;
         self.rest_cache = Some((params.alpha.clone(), rg));
@@ -819,6 +756,121 @@ impl Fitter {
             report,
         })
     }
+
+    /// Stage 2 of [`Fitter::fit`]: `opts.sweeps` sweeps of a V-step on all keypoints, each
+    /// after the first preceded by a β-step.
+    fn keypoint_stage(
+        &mut self,
+        pass: &StagePass<'_>,
+        x: &mut [V3],
+        params: &mut Params,
+    ) -> Result<StageReport> {
+        let (rg, c, opts) = (pass.rg, pass.c, pass.opts);
+        let t = Instant::now();
+        let mut its = 0;
+        let mut acc = 0;
+        let (mut e0, mut e1) = (0.0, 0.0);
+        for sweep in 0..opts.sweeps.max(1) {
+            if sweep > 0 {
+                self.beta_step(x, rg, params, c, opts)?;
+            }
+            let mut targets = self.guidance(params, rg, x, opts)?;
+            self.constraint_targets(&mut targets, pass.kp, c, &pass.init.posed, opts);
+            let rep = self.v_step(&targets, x, opts.step_iterations, opts)?;
+            its += rep.iterations;
+            acc += rep.accepted;
+            e0 = rep.energies[0];
+            e1 = *rep.energies.last().unwrap_or(&0.0);
+        }
+        Ok(StageReport {
+            name: "keypoints".into(),
+            seconds: t.elapsed().as_secs_f64(),
+            iterations: its,
+            accepted: acc,
+            energy_start: e0,
+            energy_end: e1,
+            matches: None,
+        })
+    }
+
+    /// Stage 3 of [`Fitter::fit`]: `opts.icp_passes` passes of β-step, closest-point matching
+    /// to the point cloud and V-step (none without a point cloud).
+    fn icp_stages(
+        &mut self,
+        pass: &StagePass<'_>,
+        x: &mut [V3],
+        params: &mut Params,
+    ) -> Result<Vec<StageReport>> {
+        let (rg, c, opts) = (pass.rg, pass.c, pass.opts);
+        let mut stages = Vec::new();
+        let Some((pts, nrm)) = &c.points else {
+            return Ok(stages);
+        };
+        let l2 = self.mean_edge * self.mean_edge;
+        for i in 0..opts.icp_passes {
+            let t = Instant::now();
+            self.beta_step(x, rg, params, c, opts)?;
+            let mut targets = self.guidance(params, rg, x, opts)?;
+            self.constraint_targets(&mut targets, pass.kp, c, &pass.init.posed, opts);
+            let (cons, stats) = correspondences_on(
+                &self.ev.topology().faces,
+                &self.vf,
+                x,
+                pts,
+                nrm.as_deref(),
+                opts.icp_weight / l2,
+                &opts.icp,
+            );
+            targets.points.extend(cons);
+            let rep = self.v_step(&targets, x, opts.step_iterations, opts)?;
+            stages.push(StageReport::of_solve(
+                format!("icp{}", i + 1),
+                t,
+                &rep,
+                Some(stats),
+            ));
+        }
+        Ok(stages)
+    }
+
+    /// The rigid motion placing `B_P(α, β)` on the fit `x` ([`FitOptions::placement`]);
+    /// `params`' rigid motion is zeroed where the guidance pose is evaluated.
+    fn placement(
+        &mut self,
+        c: &Constraints,
+        x: &[V3],
+        params: &mut Params,
+        opts: &FitOptions,
+    ) -> Result<Rigid> {
+        Ok(match (&c.previous, opts.placement) {
+            (Some(prev), Placement::Propagated) => {
+                // The torso patch's rigid motion since the previous frame, applied to the
+                // previous placement.
+                let k = rigid_align(&prev.vertices, x, Some(&self.torso_weights));
+                let r0 = axis_angle_matrix(prev.params.rotation);
+                Rigid {
+                    r: matmul(&k.r, &r0),
+                    t: add(matvec(&k.r, prev.params.translation), k.t),
+                }
+            }
+            _ => {
+                params.rotation = [0.0; 3];
+                params.translation = [0.0; 3];
+                let guide = self.ev.pose(params, opts.correction)?;
+                rigid_align(&guide, x, None)
+            }
+        })
+    }
+}
+
+/// What the keypoint and ICP stages of [`Fitter::fit`] share: the rest geometry of `α`, the
+/// constraints, the initializer and the keypoint terms of all given keypoints.
+struct StagePass<'p> {
+    rg: &'p RestGeometry,
+    c: &'p Constraints,
+    init: &'p Init,
+    kp: &'p [(usize, V3, f64)],
+    opts: &'p FitOptions,
 }
 
 /// Radius (m) around the neck–pelvis axis of the mean shape that selects the torso vertices of

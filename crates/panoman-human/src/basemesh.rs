@@ -104,11 +104,16 @@ impl BaseMesh {
     /// Reads any OBJ file in MakeHuman's layout (see the module docs).
     pub fn read_obj(path: &Path) -> Result<BaseMesh> {
         let text = std::fs::read_to_string(path).map_err(|e| HumanError::io(path, e))?;
-        BaseMesh::parse(&text).map_err(|what| HumanError::format(path, what))
+        BaseMesh::parse(&text).map_err(|e| e.in_file(path))
     }
 
     /// Parses OBJ text; the error names the 1-based line and what is wrong with it.
-    pub fn parse(text: &str) -> std::result::Result<BaseMesh, String> {
+    pub fn parse(text: &str) -> Result<BaseMesh> {
+        Self::parse_msg(text).map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::parse`] with the message as a `String`.
+    fn parse_msg(text: &str) -> std::result::Result<BaseMesh, String> {
         let mut mesh = BaseMesh {
             vertices_obj: Vec::new(),
             uvs: Vec::new(),
@@ -281,6 +286,7 @@ mod tests {
         assert!(
             BaseMesh::parse("v 0 0 0\nf 1 2 3\n")
                 .unwrap_err()
+                .to_string()
                 .contains("line 2")
         );
     }

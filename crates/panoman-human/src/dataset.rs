@@ -675,18 +675,7 @@ impl Dataset {
                 .map_err(|e| jerr(format!("`split.{key}`: {e}")))
         };
         let (train, held_out) = (ids("train")?, ids("held_out")?);
-        let mut seen = vec![0u8; n_id];
-        for &i in train.iter().chain(&held_out) {
-            let s = seen
-                .get_mut(i as usize)
-                .ok_or_else(|| jerr(format!("split names identity {i} of {n_id}")))?;
-            *s += 1;
-        }
-        if seen.iter().any(|&s| s != 1) {
-            return Err(jerr(
-                "train and held-out identities must partition the identities".into(),
-            ));
-        }
+        check_split(&train, &held_out, n_id).map_err(jerr)?;
 
         // Header.
         let file = File::open(&tpath).map_err(|e| HumanError::io(&tpath, e))?;
@@ -725,40 +714,7 @@ impl Dataset {
                 "topology hash {st_hash:?} differs from {JSON_FILE}'s {hash}"
             )));
         }
-        let p = 3 * theta_bones.len();
-        let expect = [
-            ("vertices", safetensors::Dtype::F32, vec![n, n_v, 3]),
-            ("theta", safetensors::Dtype::F32, vec![n, p]),
-            ("phenotype", safetensors::Dtype::F32, vec![n, 6]),
-            ("face_units", safetensors::Dtype::F32, vec![n, 52]),
-            ("identity", safetensors::Dtype::U32, vec![n]),
-            ("rest_of", safetensors::Dtype::U32, vec![n]),
-            ("kind", safetensors::Dtype::U8, vec![n]),
-        ];
-        if md.tensors().len() != expect.len() {
-            return Err(terr(format!(
-                "{} tensors, expected {}",
-                md.tensors().len(),
-                expect.len()
-            )));
-        }
-        let data0 = 8 + hlen;
-        let mut offsets = std::collections::BTreeMap::new();
-        for (name, dtype, shape) in &expect {
-            let info = md
-                .info(name)
-                .ok_or_else(|| terr(format!("missing tensor `{name}`")))?;
-            if info.dtype != *dtype || info.shape != *shape {
-                return Err(terr(format!(
-                    "tensor `{name}` is {:?} {:?}, expected {dtype:?} {shape:?}",
-                    info.dtype, info.shape
-                )));
-            }
-            offsets.insert(
-                *name,
-                (data0 + info.data_offsets.0 as u64, info.data_offsets),
-            );
-        }
+        let offsets = tensor_offsets(&md, 8 + hlen, n, n_v, 3 * theta_bones.len()).map_err(terr)?;
 
         // Tensors: stream the vertices (finiteness), read the rest.
         let mut f = r.into_inner();
@@ -769,16 +725,6 @@ impl Dataset {
                 .and_then(|_| f.read_exact(&mut buf))
                 .map_err(|e| HumanError::io(&tpath, e))?;
             Ok(buf)
-        };
-        let f32s = |b: Vec<u8>| -> Vec<f32> {
-            b.chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect()
-        };
-        let u32s = |b: Vec<u8>| -> Vec<u32> {
-            b.chunks_exact(4)
-                .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect()
         };
         let (vstart, _) = offsets["vertices"];
         {
@@ -798,9 +744,9 @@ impl Dataset {
                 }
             }
         }
-        let theta = f32s(read_at(&mut f, "theta")?);
-        let phenotype = f32s(read_at(&mut f, "phenotype")?);
-        let face_units = f32s(read_at(&mut f, "face_units")?);
+        let theta = le_f32s(read_at(&mut f, "theta")?);
+        let phenotype = le_f32s(read_at(&mut f, "phenotype")?);
+        let face_units = le_f32s(read_at(&mut f, "face_units")?);
         for (name, v) in [
             ("theta", &theta),
             ("phenotype", &phenotype),
@@ -810,33 +756,10 @@ impl Dataset {
                 return Err(terr(format!("tensor `{name}`: non-finite value at {k}")));
             }
         }
-        let identity = u32s(read_at(&mut f, "identity")?);
-        let rest_of = u32s(read_at(&mut f, "rest_of")?);
+        let identity = le_u32s(read_at(&mut f, "identity")?);
+        let rest_of = le_u32s(read_at(&mut f, "rest_of")?);
         let kind = read_at(&mut f, "kind")?;
-        let mut counts = [0usize; 4];
-        for row in 0..n {
-            let k = kind[row];
-            if k > 3 {
-                return Err(terr(format!("row {row}: kind {k} is not 0..=3")));
-            }
-            counts[k as usize] += 1;
-            if identity[row] as usize >= n_id {
-                return Err(terr(format!(
-                    "row {row}: identity {} of {n_id}",
-                    identity[row]
-                )));
-            }
-            let ro = rest_of[row] as usize;
-            if ro >= n || kind[ro] != KIND_REST || identity[ro] != identity[row] {
-                return Err(terr(format!(
-                    "row {row}: rest_of {ro} is not a rest row of identity {}",
-                    identity[row]
-                )));
-            }
-            if k == KIND_REST && ro != row {
-                return Err(terr(format!("rest row {row} has rest_of {ro}")));
-            }
-        }
+        let counts = check_rows(&kind, &identity, &rest_of, n_id).map_err(terr)?;
         for (k, name) in KIND_NAMES.iter().enumerate() {
             if meta["counts"][name].as_u64() != Some(counts[k] as u64) {
                 return Err(jerr(format!(
@@ -925,4 +848,111 @@ impl Dataset {
         }
         c
     }
+}
+
+/// Little-endian `f32` values of `b`.
+fn le_f32s(b: Vec<u8>) -> Vec<f32> {
+    b.chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+/// Little-endian `u32` values of `b`.
+fn le_u32s(b: Vec<u8>) -> Vec<u32> {
+    b.chunks_exact(4)
+        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+/// The byte ranges `(absolute start, data offsets)` of the seven dataset tensors in a
+/// safetensors file whose data section starts at `data0`, checked against the dtypes and
+/// shapes of `n` rows of `n_v` vertices and `p` pose values.
+fn tensor_offsets(
+    md: &safetensors::tensor::Metadata,
+    data0: u64,
+    n: usize,
+    n_v: usize,
+    p: usize,
+) -> std::result::Result<std::collections::BTreeMap<&'static str, (u64, (usize, usize))>, String> {
+    let expect = [
+        ("vertices", safetensors::Dtype::F32, vec![n, n_v, 3]),
+        ("theta", safetensors::Dtype::F32, vec![n, p]),
+        ("phenotype", safetensors::Dtype::F32, vec![n, 6]),
+        ("face_units", safetensors::Dtype::F32, vec![n, 52]),
+        ("identity", safetensors::Dtype::U32, vec![n]),
+        ("rest_of", safetensors::Dtype::U32, vec![n]),
+        ("kind", safetensors::Dtype::U8, vec![n]),
+    ];
+    if md.tensors().len() != expect.len() {
+        return Err(format!(
+            "{} tensors, expected {}",
+            md.tensors().len(),
+            expect.len()
+        ));
+    }
+    let mut offsets = std::collections::BTreeMap::new();
+    for (name, dtype, shape) in &expect {
+        let info = md
+            .info(name)
+            .ok_or_else(|| format!("missing tensor `{name}`"))?;
+        if info.dtype != *dtype || info.shape != *shape {
+            return Err(format!(
+                "tensor `{name}` is {:?} {:?}, expected {dtype:?} {shape:?}",
+                info.dtype, info.shape
+            ));
+        }
+        offsets.insert(
+            *name,
+            (data0 + info.data_offsets.0 as u64, info.data_offsets),
+        );
+    }
+    Ok(offsets)
+}
+
+/// Checks that the train and held-out identities partition `0..n_id`.
+fn check_split(train: &[u32], held_out: &[u32], n_id: usize) -> std::result::Result<(), String> {
+    let mut seen = vec![0u8; n_id];
+    for &i in train.iter().chain(held_out) {
+        let s = seen
+            .get_mut(i as usize)
+            .ok_or_else(|| format!("split names identity {i} of {n_id}"))?;
+        *s += 1;
+    }
+    if seen.iter().any(|&s| s != 1) {
+        return Err("train and held-out identities must partition the identities".into());
+    }
+    Ok(())
+}
+
+/// Checks the per-row tensors (kinds in 0..=3, identities below `n_id`, `rest_of` pointing
+/// at a rest row of the same identity) and returns the number of rows per kind.
+fn check_rows(
+    kind: &[u8],
+    identity: &[u32],
+    rest_of: &[u32],
+    n_id: usize,
+) -> std::result::Result<[usize; 4], String> {
+    let mut counts = [0usize; 4];
+    let n = kind.len();
+    for row in 0..n {
+        let k = kind[row];
+        if k > 3 {
+            return Err(format!("row {row}: kind {k} is not 0..=3"));
+        }
+        counts[k as usize] += 1;
+        if identity[row] as usize >= n_id {
+            return Err(format!("row {row}: identity {} of {n_id}", identity[row]));
+        }
+        let ro = rest_of[row] as usize;
+        if ro >= n || kind[ro] != KIND_REST || identity[ro] != identity[row] {
+            return Err(format!(
+                "row {row}: rest_of {ro} is not a rest row of identity {}",
+                identity[row]
+            ));
+        }
+        if k == KIND_REST && ro != row {
+            return Err(format!("rest row {row} has rest_of {ro}"));
+        }
+    }
+    Ok(counts)
 }

@@ -68,6 +68,16 @@ impl HumanError {
             what: what.into(),
         }
     }
+
+    /// The error of content read from `path`: an [`HumanError::Invalid`] (what a parser or
+    /// a check of in-memory content found) becomes a [`HumanError::Format`] naming the file;
+    /// every other error is returned unchanged.
+    pub fn in_file(self, path: impl Into<PathBuf>) -> HumanError {
+        match self {
+            HumanError::Invalid(what) => HumanError::format(path, what),
+            other => other,
+        }
+    }
 }
 
 /// Result alias of this crate.

@@ -183,7 +183,7 @@ impl Generator {
             let json: serde_json::Value = serde_json::from_str(&text)
                 .map_err(|e| HumanError::format(&path, format!("invalid JSON: {e}")))?;
             assets::local_change_pairs(&json)
-                .map_err(|w| HumanError::format(&path, w))?
+                .map_err(|e| e.in_file(&path))?
                 .into_iter()
                 .filter(|p| !p.label.contains("nipple"))
                 .collect()
@@ -451,7 +451,7 @@ impl Generator {
     /// [`HumanError::Invalid`] for invalid parameters (see [`ShapeParams::validate`]) or a
     /// local change that was not loaded.
     pub fn rest_mesh(&self, shape: &ShapeParams) -> Result<Vec<V3>> {
-        shape.validate().map_err(HumanError::Invalid)?;
+        shape.validate()?;
         let w = FeatureWeights::new(&shape.phenotype);
         // Per-file per-axis coefficients (newborn shapes scale their baby file by s).
         let mut coef: Vec<Option<[f64; 3]>> = vec![None; self.macro_targets.len()];

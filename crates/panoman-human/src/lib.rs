@@ -17,7 +17,6 @@ pub use error::{HumanError, Result};
 pub mod clip;
 pub mod dataset;
 pub mod generator;
-pub mod ik;
 pub mod keypoints;
 pub mod outputs;
 pub mod params;

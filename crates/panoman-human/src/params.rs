@@ -69,8 +69,13 @@ impl ShapeParams {
     ///
     /// # Errors
     /// One line naming the offending parameter.
-    pub fn validate(&self) -> std::result::Result<(), String> {
-        self.phenotype.validate()?;
+    pub fn validate(&self) -> Result<()> {
+        self.validate_msg().map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::validate`] with the message as a `String`.
+    fn validate_msg(&self) -> std::result::Result<(), String> {
+        self.phenotype.validate_msg()?;
         for (k, &v) in self.facial_actions.iter().enumerate() {
             check_range(&format!("facial action `{}`", FACE_UNITS[k]), v, 0.0, 1.0)?;
         }
@@ -84,7 +89,13 @@ impl ShapeParams {
     ///
     /// # Errors
     /// An unknown unit name.
-    pub fn set_facial_action(&mut self, unit: &str, v: f64) -> std::result::Result<(), String> {
+    pub fn set_facial_action(&mut self, unit: &str, v: f64) -> Result<()> {
+        self.set_facial_action_msg(unit, v)
+            .map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::set_facial_action`] with the message as a `String`.
+    fn set_facial_action_msg(&mut self, unit: &str, v: f64) -> std::result::Result<(), String> {
         let k = face_unit_index(unit).ok_or_else(|| format!("unknown facial action `{unit}`"))?;
         self.facial_actions[k] = v;
         Ok(())
@@ -109,7 +120,12 @@ impl PoseParams {
     ///
     /// # Errors
     /// One line naming the offending value.
-    pub fn validate(&self, bone_names: &[String]) -> std::result::Result<(), String> {
+    pub fn validate(&self, bone_names: &[String]) -> Result<()> {
+        self.validate_msg(bone_names).map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::validate`] with the message as a `String`.
+    fn validate_msg(&self, bone_names: &[String]) -> std::result::Result<(), String> {
         if !self.euler_deg.is_empty() && self.euler_deg.len() != bone_names.len() {
             return Err(format!(
                 "pose has {} Euler triples, expected {} (one per bone) or none",
@@ -206,7 +222,7 @@ impl GeneratorParams {
             *slot = v;
         }
         for (unit, &v) in &f.facial_actions {
-            shape.set_facial_action(unit, v).map_err(inv)?;
+            shape.set_facial_action(unit, v)?;
         }
         for (label, &v) in &f.local_changes {
             if !local_change_labels.iter().any(|l| l == label) {
@@ -214,7 +230,7 @@ impl GeneratorParams {
             }
             shape.local_changes.insert(label.clone(), v);
         }
-        shape.validate().map_err(inv)?;
+        shape.validate()?;
         let mut pose = PoseParams {
             euler_deg: Vec::new(),
             root_rotation_z_deg: f.root_rotation_z_deg,
@@ -230,7 +246,7 @@ impl GeneratorParams {
                 pose.euler_deg[c] = e;
             }
         }
-        pose.validate(bone_names).map_err(inv)?;
+        pose.validate(bone_names)?;
         Ok(GeneratorParams { shape, pose })
     }
 

@@ -6,6 +6,8 @@
 //! (hat functions over each feature's anchors, §5.2). Newborn shapes reuse the baby file of the
 //! same tuple with a per-axis scaling and a template term (§5.3, see [`NEWBORN_SCALE`]).
 
+use crate::error::{HumanError, Result};
+
 /// Names of all phenotype parameters accepted in parameter files, in Anny's "all" order.
 /// The first six are Anny's default phenotype set.
 pub const PHENOTYPE_NAMES: [&str; 11] = [
@@ -189,7 +191,12 @@ impl Phenotype {
     ///
     /// # Errors
     /// One line naming the parameter, its value and its range.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<()> {
+        self.validate_msg().map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::validate`] with the message as a `String`.
+    pub(crate) fn validate_msg(&self) -> std::result::Result<(), String> {
         for name in PHENOTYPE_NAMES {
             let v = self.get(name).unwrap_or(f64::NAN);
             let (lo, hi) = Phenotype::range(name);

@@ -488,7 +488,12 @@ impl Regions {
     /// # Errors
     /// A binding to a triangle that is not a face of the full template, or an invalid small
     /// topology (one line).
-    pub fn small(full: &Regions, small: &SmallTopology) -> std::result::Result<Regions, String> {
+    pub fn small(full: &Regions, small: &SmallTopology) -> Result<Regions> {
+        Self::small_msg(full, small).map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::small`] with the message as a `String`.
+    fn small_msg(full: &Regions, small: &SmallTopology) -> std::result::Result<Regions, String> {
         let key = |t: [u32; 3]| {
             let mut k = t;
             k.sort_unstable();

@@ -140,7 +140,7 @@ impl Rig {
     /// I/O or [`HumanError::Format`] naming the file.
     pub fn read(path: &Path, base: &BaseMesh) -> Result<Rig> {
         let text = std::fs::read_to_string(path).map_err(|e| HumanError::io(path, e))?;
-        Rig::parse(&text, base).map_err(|what| HumanError::format(path, what))
+        Rig::parse(&text, base).map_err(|e| e.in_file(path))
     }
 
     /// Parses rig JSON (`{bone: {...}}` or `{"bones": {bone: {...}}}`, §3.4), orders the bones
@@ -150,7 +150,12 @@ impl Rig {
     /// # Errors
     /// One line: bad JSON, a missing/ill-typed field, an unknown strategy, cube or parent,
     /// not exactly one root, or bones unreachable from the root.
-    pub fn parse(text: &str, base: &BaseMesh) -> std::result::Result<Rig, String> {
+    pub fn parse(text: &str, base: &BaseMesh) -> Result<Rig> {
+        Self::parse_msg(text, base).map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::parse`] with the message as a `String`.
+    fn parse_msg(text: &str, base: &BaseMesh) -> std::result::Result<Rig, String> {
         let entries: BoneEntries =
             serde_json::from_str(text).map_err(|e| format!("invalid rig JSON: {e}"))?;
         let entries = entries.0;
@@ -395,7 +400,12 @@ impl<'de> serde::Deserialize<'de> for BoneEntries {
 ///
 /// # Errors
 /// The serde_json message when `text` is not a JSON object.
-pub fn ordered_entries(text: &str) -> std::result::Result<Vec<(String, Value)>, String> {
+pub fn ordered_entries(text: &str) -> Result<Vec<(String, Value)>> {
+    ordered_entries_msg(text).map_err(HumanError::Invalid)
+}
+
+/// [`ordered_entries`] with the message as a `String`.
+fn ordered_entries_msg(text: &str) -> std::result::Result<Vec<(String, Value)>, String> {
     serde_json::from_str::<Ordered>(text)
         .map(|o| o.0)
         .map_err(|e| e.to_string())

@@ -53,7 +53,7 @@ impl SkinWeights {
     /// I/O or [`HumanError::Format`] naming the file.
     pub fn read(path: &Path, rig: &Rig, vertices: &[u32]) -> Result<SkinWeights> {
         let text = std::fs::read_to_string(path).map_err(|e| HumanError::io(path, e))?;
-        SkinWeights::parse(&text, rig, vertices).map_err(|w| HumanError::format(path, w))
+        SkinWeights::parse(&text, rig, vertices).map_err(|e| e.in_file(path))
     }
 
     /// Parses `{"weights": {bone: [[vertex, weight], ...]}, ...}` (§3.5) and builds the
@@ -64,7 +64,12 @@ impl SkinWeights {
     /// # Errors
     /// One line: bad JSON, an unknown bone, a negative or non-finite weight, or a vertex of
     /// `vertices` with no positive weight.
-    pub fn parse(text: &str, rig: &Rig, vertices: &[u32]) -> std::result::Result<Self, String> {
+    pub fn parse(text: &str, rig: &Rig, vertices: &[u32]) -> Result<Self> {
+        Self::parse_msg(text, rig, vertices).map_err(HumanError::Invalid)
+    }
+
+    /// [`Self::parse`] with the message as a `String`.
+    fn parse_msg(text: &str, rig: &Rig, vertices: &[u32]) -> std::result::Result<Self, String> {
         let file: WeightsFile =
             serde_json::from_str(text).map_err(|e| format!("invalid weights JSON: {e}"))?;
         let max_v = vertices.iter().map(|&v| v as usize + 1).max().unwrap_or(0);

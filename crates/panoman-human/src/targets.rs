@@ -150,7 +150,7 @@ pub fn read_target(path: &Path, map: &[u32]) -> Result<SparseTarget> {
     } else {
         String::from_utf8(bytes).map_err(|_| HumanError::format(path, "not UTF-8 text"))?
     };
-    parse_target(&text, map).map_err(|what| HumanError::format(path, what))
+    parse_target(&text, map).map_err(|e| e.in_file(path))
 }
 
 /// Parses target text (§3.3) into world-frame rows restricted to kept vertices.
@@ -162,7 +162,12 @@ pub fn read_target(path: &Path, map: &[u32]) -> Result<SparseTarget> {
 /// # Errors
 /// A one-line message naming the 1-based line: wrong field count, a non-number, a non-finite
 /// number, or an index out of range.
-pub fn parse_target(text: &str, map: &[u32]) -> std::result::Result<SparseTarget, String> {
+pub fn parse_target(text: &str, map: &[u32]) -> Result<SparseTarget> {
+    parse_target_msg(text, map).map_err(HumanError::Invalid)
+}
+
+/// [`parse_target`] with the message as a `String`.
+fn parse_target_msg(text: &str, map: &[u32]) -> std::result::Result<SparseTarget, String> {
     let mut index = Vec::new();
     let mut milli: Vec<[i16; 3]> = Vec::new();
     let mut raw: Vec<[f64; 3]> = Vec::new();
@@ -266,13 +271,20 @@ mod tests {
         assert!(
             parse_target("0 1 2\n", &map)
                 .unwrap_err()
+                .to_string()
                 .contains("line 1")
         );
         assert!(
             parse_target("5 1 2 3\n", &map)
                 .unwrap_err()
+                .to_string()
                 .contains("out of range")
         );
-        assert!(parse_target("0 1 x 3\n", &map).unwrap_err().contains("`x`"));
+        assert!(
+            parse_target("0 1 x 3\n", &map)
+                .unwrap_err()
+                .to_string()
+                .contains("`x`")
+        );
     }
 }

@@ -1,7 +1,7 @@
 //! The Anny-equivalent generator against the reference outputs of anny 0.6.2
 //! (`shared/fixtures/anny-oracle`, anny-assets.md §9): rest mesh, joints, pose deltas from the
 //! Euler parameters, FK and LBS to ≤ 1e-9 m on all 13,718 vertices and 163 bones; parameter
-//! errors; and an (ignored) throughput measurement.
+//! errors. The throughput measurement is the example `generator_throughput`.
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -256,52 +256,6 @@ fn bad_parameter_files_give_clear_errors() {
         .unwrap();
     assert_eq!(back, p);
     let _: GeneratorParams = back;
-}
-
-/// Throughput: identity build (rest mesh + joints + frames) and posing one identity.
-/// Run with `cargo test --release -p panoman-human --test generator -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn throughput() {
-    let g = generator();
-    let mut params = Vec::new();
-    for case in CASES {
-        params.push(
-            g.read_params(&oracle().join(format!("case_{case}.json")))
-                .unwrap(),
-        );
-    }
-    // Identity build.
-    let n_id = 60;
-    let t = Instant::now();
-    for k in 0..n_id {
-        let id = g.identity(&params[k % 3].shape).unwrap();
-        std::hint::black_box(id.bone_heads()[0]);
-    }
-    let id_ms = t.elapsed().as_secs_f64() * 1e3 / n_id as f64;
-    // Posing, sequential calls (each call skins on the rayon pool).
-    let id = g.identity(&params[1].shape).unwrap();
-    let mut out = Default::default();
-    let n_pose = 2000;
-    let t = Instant::now();
-    for k in 0..n_pose {
-        id.pose_into(&params[1 + k % 2].pose, &mut out);
-        std::hint::black_box(out.vertices[0]);
-    }
-    let seq = n_pose as f64 / t.elapsed().as_secs_f64();
-    // Posing, one pose per task on the rayon pool.
-    use rayon::prelude::*;
-    let t = Instant::now();
-    (0..n_pose).into_par_iter().for_each(|k| {
-        let p = id.pose(&params[1 + k % 2].pose);
-        std::hint::black_box(p.vertices[0]);
-    });
-    let par = n_pose as f64 / t.elapsed().as_secs_f64();
-    eprintln!(
-        "identity build {id_ms:.2} ms/identity; posing {seq:.0} meshes/s (sequential calls), \
-         {par:.0} meshes/s (parallel over poses), {} threads",
-        rayon::current_num_threads()
-    );
 }
 
 fn rest_height(g: &Generator, p: panoman_human::phenotype::Phenotype) -> f64 {

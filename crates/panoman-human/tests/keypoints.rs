@@ -346,12 +346,12 @@ fn keypoints_json_round_trip_and_errors() {
         (r#"{"keypoints": {}, "extra": 1}"#, "unknown key"),
         (r#"{"units": "m"}"#, "missing `keypoints`"),
     ] {
-        let e = KeypointsFile::parse(bad).expect_err(bad);
+        let e = KeypointsFile::parse(bad).expect_err(bad).to_string();
         assert!(e.contains(what), "{bad}: {e}");
     }
     let mut nan = KeypointsFile::from_all(&pts);
     nan.points.insert(7, [f64::NAN, 0.0, 0.0]);
-    let e = nan.to_json().unwrap_err();
+    let e = nan.to_json().unwrap_err().to_string();
     assert!(e.contains("l_knee") && e.contains("not finite"), "{e}");
     // File I/O names the file.
     let dir = std::env::temp_dir().join(format!("panoman-kp-json-{}", std::process::id()));

@@ -266,7 +266,7 @@ pub fn parse_keypoints(text: &str, path: &Path, options: &ImportOptions) -> Resu
         per_metre: options.unit.per_metre(),
     };
     match layout {
-        Layout::Tc127 => return KeypointsFile::parse(text).map_err(fmt),
+        Layout::Tc127 => return KeypointsFile::parse(text).map_err(|e| fmt(e.to_string())),
         Layout::OpenPose => openpose(&doc, options.person, &mut acc).map_err(fmt)?,
         Layout::PanopticBody => {
             let body = pick(&doc, "bodies", options.person).map_err(fmt)?;
@@ -296,7 +296,7 @@ pub fn parse_keypoints(text: &str, path: &Path, options: &ImportOptions) -> Resu
             }
         }
     }
-    acc.out.validate().map_err(fmt)?;
+    acc.out.validate().map_err(|e| fmt(e.to_string()))?;
     Ok(acc.out)
 }
 

@@ -153,6 +153,48 @@ pub struct GWorkspace {
     pub stats: GStats,
 }
 
+/// The gauge face of every face component and the gauge vertex of every vertex component
+/// (the first vertex of its component's gauge face).
+///
+/// # Errors
+/// [`MeshError::Topology`] if face and vertex components disagree.
+fn gauges(topo: &Topology) -> Result<(Vec<u32>, Vec<u32>)> {
+    let nf = topo.n_faces();
+    let ncomp = topo.n_face_components;
+    // Gauge face per component: the (approximate) centre of its dual graph — the midpoint
+    // of a double-sweep BFS diameter path — which halves the longest path from the gauge
+    // and so the drift of frames on non-integrable data.
+    let mut gauge_faces = vec![NONE; ncomp];
+    for f in 0..nf {
+        let c = topo.face_component[f] as usize;
+        if gauge_faces[c] == NONE {
+            gauge_faces[c] = f as u32;
+        }
+    }
+    for g in gauge_faces.iter_mut() {
+        let (far, _) = dual_bfs(topo, *g);
+        let (other, parent) = dual_bfs(topo, far);
+        let mut path = vec![other];
+        while *path.last().unwrap() != far {
+            path.push(parent[*path.last().unwrap() as usize]);
+        }
+        *g = path[path.len() / 2];
+    }
+    let mut gauge_vertices = vec![NONE; ncomp];
+    for (c, &f) in gauge_faces.iter().enumerate() {
+        let v = topo.faces[f as usize][0];
+        let vc = topo.vertex_component[v as usize] as usize;
+        if gauge_vertices[vc] != NONE {
+            return Err(MeshError::Topology(
+                "face and vertex components disagree".into(),
+            ));
+        }
+        gauge_vertices[vc] = v;
+        let _ = c;
+    }
+    Ok((gauge_faces, gauge_vertices))
+}
+
 impl Reconstructor {
     /// Builds the per-topology state: gauge choice (the dual-graph centre face of each
     /// component and its first vertex), BFS tree, and the Cholesky factors of the dual-graph Laplacian and
@@ -167,37 +209,7 @@ impl Reconstructor {
                 topo.n_vertex_components, ncomp
             )));
         }
-        // Gauge face per component: the (approximate) centre of its dual graph — the midpoint
-        // of a double-sweep BFS diameter path — which halves the longest path from the gauge
-        // and so the drift of frames on non-integrable data.
-        let mut gauge_faces = vec![NONE; ncomp];
-        for f in 0..nf {
-            let c = topo.face_component[f] as usize;
-            if gauge_faces[c] == NONE {
-                gauge_faces[c] = f as u32;
-            }
-        }
-        for g in gauge_faces.iter_mut() {
-            let (far, _) = dual_bfs(topo, *g);
-            let (other, parent) = dual_bfs(topo, far);
-            let mut path = vec![other];
-            while *path.last().unwrap() != far {
-                path.push(parent[*path.last().unwrap() as usize]);
-            }
-            *g = path[path.len() / 2];
-        }
-        let mut gauge_vertices = vec![NONE; ncomp];
-        for (c, &f) in gauge_faces.iter().enumerate() {
-            let v = topo.faces[f as usize][0];
-            let vc = topo.vertex_component[v as usize] as usize;
-            if gauge_vertices[vc] != NONE {
-                return Err(MeshError::Topology(
-                    "face and vertex components disagree".into(),
-                ));
-            }
-            gauge_vertices[vc] = v;
-            let _ = c;
-        }
+        let (gauge_faces, gauge_vertices) = gauges(topo)?;
 
         // Reduced numbering (gauges removed).
         let mut face_red = vec![NONE; nf];
@@ -433,43 +445,9 @@ impl Reconstructor {
         gauge: &Gauge,
         out: &mut [V3],
     ) -> Result<GStats> {
+        self.check_inputs(lengths, angles, gauge, out)?;
         let topo = &self.topo;
-        let (ne, nv) = (topo.n_edges(), topo.n_vertices);
-        if lengths.len() != ne || angles.len() != ne {
-            return Err(MeshError::Mismatch(format!(
-                "{} target lengths and {} angles for {ne} edges",
-                lengths.len(),
-                angles.len()
-            )));
-        }
-        if out.len() != nv {
-            return Err(MeshError::Mismatch(format!(
-                "output has {} vertices, the topology has {nv}",
-                out.len()
-            )));
-        }
-        if gauge.frames.len() != self.gauge_faces.len()
-            || gauge.positions.len() != self.gauge_faces.len()
-        {
-            return Err(MeshError::Mismatch(format!(
-                "gauge has {} frames / {} positions for {} components",
-                gauge.frames.len(),
-                gauge.positions.len(),
-                self.gauge_faces.len()
-            )));
-        }
-        if let Some(e) = lengths.iter().position(|l| !(l.is_finite() && *l > 0.0)) {
-            return Err(MeshError::NonFinite(format!(
-                "target length of edge {e} is {} (must be finite and > 0)",
-                lengths[e]
-            )));
-        }
-        if let Some(e) = angles.iter().position(|a| !a.is_finite()) {
-            return Err(MeshError::NonFinite(format!(
-                "target angle of edge {e} is {}",
-                angles[e]
-            )));
-        }
+        let nv = topo.n_vertices;
 
         // 1. Local coordinates per face.
         ws.local
@@ -577,6 +555,54 @@ impl Reconstructor {
         }
         ws.stats = frame_stats;
         Ok(ws.stats)
+    }
+
+    /// The size and finiteness checks of [`Reconstructor::reconstruct`].
+    fn check_inputs(
+        &self,
+        lengths: &[f64],
+        angles: &[f64],
+        gauge: &Gauge,
+        out: &[V3],
+    ) -> Result<()> {
+        let topo = &self.topo;
+        let (ne, nv) = (topo.n_edges(), topo.n_vertices);
+        if lengths.len() != ne || angles.len() != ne {
+            return Err(MeshError::Mismatch(format!(
+                "{} target lengths and {} angles for {ne} edges",
+                lengths.len(),
+                angles.len()
+            )));
+        }
+        if out.len() != nv {
+            return Err(MeshError::Mismatch(format!(
+                "output has {} vertices, the topology has {nv}",
+                out.len()
+            )));
+        }
+        if gauge.frames.len() != self.gauge_faces.len()
+            || gauge.positions.len() != self.gauge_faces.len()
+        {
+            return Err(MeshError::Mismatch(format!(
+                "gauge has {} frames / {} positions for {} components",
+                gauge.frames.len(),
+                gauge.positions.len(),
+                self.gauge_faces.len()
+            )));
+        }
+        if let Some(e) = lengths.iter().position(|l| !(l.is_finite() && *l > 0.0)) {
+            return Err(MeshError::NonFinite(format!(
+                "target length of edge {e} is {} (must be finite and > 0)",
+                lengths[e]
+            )));
+        }
+        if let Some(e) = angles.iter().position(|a| !a.is_finite()) {
+            return Err(MeshError::NonFinite(format!(
+                "target angle of edge {e} is {}",
+                angles[e]
+            )));
+        }
+        Ok(())
     }
 
     /// E_F of `frames` (deterministic chunked sum).

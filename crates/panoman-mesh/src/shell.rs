@@ -818,10 +818,19 @@ impl ShellSolver {
                 "shell solver: non-finite value after assembling JᵀJ and Jᵀr".into(),
             ));
         }
-        // Marquardt scaling D = max(diag JᵀJ, 1e−8·max diag) (+ an absolute floor), with the
-        // dense supports' diagonal W b_m² included as if they were assembled.
+        self.marquardt_scaling(x);
+        self.skipped = skipped;
+        self.linearized = true;
+        Ok(energy)
+    }
+
+    /// The Marquardt scaling `D = max(diag JᵀJ, 1e−8·max diag)` (+ an absolute floor) of the
+    /// assembled system, with the dense supports' diagonal `W b_m²` included as if they were
+    /// assembled; the dense supports' target sums become the offsets `Γx − t̄`.
+    fn marquardt_scaling(&mut self, x: &[V3]) {
+        let col_ptr = self.pattern.col_ptr();
         for c in 0..self.n {
-            self.diag_scale[c] = vals[col_ptr[c]];
+            self.diag_scale[c] = self.jtj[col_ptr[c]];
         }
         if let Some(ds) = &mut self.dense {
             for (k, rows) in ds.rows.iter().enumerate() {
@@ -845,9 +854,6 @@ impl ShellSolver {
         for d in self.diag_scale.iter_mut() {
             *d = d.max(floor);
         }
-        self.skipped = skipped;
-        self.linearized = true;
-        Ok(energy)
     }
 
     /// `g = Jᵀr` from the last [`ShellSolver::linearize`] (`∇E = 2g`), length 3|V|, vertex-major.

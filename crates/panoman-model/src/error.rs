@@ -18,6 +18,10 @@ pub enum ModelError {
     /// Inputs of the wrong size or kind.
     #[error("invalid input: {0}")]
     Invalid(String),
+    /// Parameters that do not match the model (names, lengths, non-finite values); the
+    /// message says what is wrong.
+    #[error("{0}")]
+    Params(String),
     /// A numerical step failed.
     #[error("numerical failure: {0}")]
     Numerical(String),

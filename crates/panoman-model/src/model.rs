@@ -173,7 +173,7 @@ impl Params {
             path: path.to_path_buf(),
             what: format!("not a valid parameter file: {e}"),
         })?;
-        p.validate(model).map_err(|what| ModelError::Format {
+        p.validate_msg(model).map_err(|what| ModelError::Format {
             path: path.to_path_buf(),
             what,
         })?;
@@ -181,7 +181,15 @@ impl Params {
     }
 
     /// Checks names, lengths and finiteness against `model`; the message says what is wrong.
-    pub fn validate(&self, model: &PanoManModel) -> std::result::Result<(), String> {
+    ///
+    /// # Errors
+    /// [`ModelError::Params`] with one line.
+    pub fn validate(&self, model: &PanoManModel) -> Result<()> {
+        self.validate_msg(model).map_err(ModelError::Params)
+    }
+
+    /// [`Self::validate`] with the message as a `String`.
+    fn validate_msg(&self, model: &PanoManModel) -> std::result::Result<(), String> {
         let k = model.shape.n_components();
         if !self.alpha.is_empty() && self.alpha.len() != k {
             return Err(format!(
@@ -643,24 +651,7 @@ impl PanoManModel {
                 topo.n_edges()
             )));
         }
-        let d = 3 * h.n_vertices;
-        let k = h.n_shape;
-        let mean = get_f64(s, "shape.mean", &[d])?;
-        let comps = get_f64(s, "shape.components", &[d, k])?;
-        let std_devs = get_f64(s, "shape.std_devs", &[k])?;
-        let explained = get_f64(s, "shape.explained", &[k])?;
-        let totals = get_f64(s, "shape.totals", &[2])?;
-        if std_devs.iter().any(|&x| x <= 0.0) {
-            return Err(bad("shape.std_devs must be positive".into()));
-        }
-        let shape = ShapePca {
-            mean,
-            components: Mat::from_fn(d, k, |i, j| comps[i * k + j]),
-            std_devs,
-            explained_variance_ratio: explained,
-            total_variance: totals[0],
-            n_samples: totals[1] as usize,
-        };
+        let shape = read_shape(s, &h)?;
         let edge_part: Vec<u8> = get_u32(s, "edge_part", &[h.n_edges])?
             .iter()
             .map(|&p| {
@@ -671,68 +662,8 @@ impl PanoManModel {
                 }
             })
             .collect::<Result<_>>()?;
-        if h.blocks.len() != 6 || h.blocks.iter().zip(BLOCK_NAMES).any(|(b, n)| b.name != n) {
-            return Err(bad(format!(
-                "model must have the blocks {}",
-                BLOCK_NAMES.join(", ")
-            )));
-        }
-        let mut blocks = Vec::with_capacity(6);
-        for bh in &h.blocks {
-            let p = format!("block.{}", bh.name);
-            let columns = get_u32(s, &format!("{p}.columns"), &[bh.n_columns])?;
-            if columns.iter().any(|&e| e as usize >= h.n_edges)
-                || columns.windows(2).any(|w| w[0] >= w[1])
-            {
-                return Err(bad(format!(
-                    "{p}.columns must be ascending edge ids < {}",
-                    h.n_edges
-                )));
-            }
-            let mean = get_f32(s, &format!("{p}.mean"), &[bh.n_columns])?;
-            let row_ptr: Vec<usize> = get_u32(s, &format!("{p}.row_ptr"), &[bh.n_components + 1])?
-                .iter()
-                .map(|&x| x as usize)
-                .collect();
-            let col_idx = get_u32(s, &format!("{p}.col_idx"), &[bh.nnz])?;
-            let values = get_f32(s, &format!("{p}.values"), &[bh.nnz])?;
-            if row_ptr[0] != 0
-                || *row_ptr.last().unwrap() != bh.nnz
-                || row_ptr.windows(2).any(|w| w[0] > w[1])
-                || col_idx.iter().any(|&c| c as usize >= bh.n_columns)
-            {
-                return Err(bad(format!("{p}: inconsistent sparse component storage")));
-            }
-            let range = get_f32(s, &format!("{p}.beta_range"), &[bh.n_components, 2])?;
-            blocks.push(Block {
-                name: bh.name.clone(),
-                columns,
-                mean,
-                components: SparseRows {
-                    n_cols: bh.n_columns,
-                    row_ptr,
-                    col_idx,
-                    values,
-                },
-                beta_range: range.chunks_exact(2).map(|c| [c[0], c[1]]).collect(),
-            });
-        }
-        let nkp = h.keypoint_names.len();
-        let kptr = get_u32(s, "keypoints.row_ptr", &[nkp + 1])?;
-        let nnz = *kptr.last().unwrap_or(&0) as usize;
-        let kv = get_u32(s, "keypoints.vertex", &[nnz])?;
-        let kw = get_f64(s, "keypoints.weight", &[nnz])?;
-        if kptr.windows(2).any(|w| w[0] > w[1]) || kv.iter().any(|&v| v as usize >= h.n_vertices) {
-            return Err(bad("keypoints: inconsistent storage".into()));
-        }
-        let rows = kptr
-            .windows(2)
-            .map(|w| {
-                (w[0] as usize..w[1] as usize)
-                    .map(|i| (kv[i], kw[i]))
-                    .collect()
-            })
-            .collect();
+        let blocks = read_blocks(s, &h)?;
+        let rows = read_keypoint_rows(s, &h)?;
         let k_body = body_mlp_len(&blocks);
         let correction = if h.correction {
             let mlp = Mlp::read(s, "correction.mlp")?;
@@ -787,6 +718,104 @@ impl PanoManModel {
             rig,
         })
     }
+}
+
+/// The shape PCA of a model store (`shape.*`, sizes from the header).
+fn read_shape(s: &TensorStore, h: &Header) -> Result<ShapePca> {
+    let bad = |w: String| ModelError::Invalid(w);
+    let d = 3 * h.n_vertices;
+    let k = h.n_shape;
+    let mean = get_f64(s, "shape.mean", &[d])?;
+    let comps = get_f64(s, "shape.components", &[d, k])?;
+    let std_devs = get_f64(s, "shape.std_devs", &[k])?;
+    let explained = get_f64(s, "shape.explained", &[k])?;
+    let totals = get_f64(s, "shape.totals", &[2])?;
+    if std_devs.iter().any(|&x| x <= 0.0) {
+        return Err(bad("shape.std_devs must be positive".into()));
+    }
+    Ok(ShapePca {
+        mean,
+        components: Mat::from_fn(d, k, |i, j| comps[i * k + j]),
+        std_devs,
+        explained_variance_ratio: explained,
+        total_variance: totals[0],
+        n_samples: totals[1] as usize,
+    })
+}
+
+/// The six component blocks of a model store (`block.<name>.*`), checked against the
+/// header.
+fn read_blocks(s: &TensorStore, h: &Header) -> Result<Vec<Block>> {
+    let bad = |w: String| ModelError::Invalid(w);
+    if h.blocks.len() != 6 || h.blocks.iter().zip(BLOCK_NAMES).any(|(b, n)| b.name != n) {
+        return Err(bad(format!(
+            "model must have the blocks {}",
+            BLOCK_NAMES.join(", ")
+        )));
+    }
+    let mut blocks = Vec::with_capacity(6);
+    for bh in &h.blocks {
+        let p = format!("block.{}", bh.name);
+        let columns = get_u32(s, &format!("{p}.columns"), &[bh.n_columns])?;
+        if columns.iter().any(|&e| e as usize >= h.n_edges)
+            || columns.windows(2).any(|w| w[0] >= w[1])
+        {
+            return Err(bad(format!(
+                "{p}.columns must be ascending edge ids < {}",
+                h.n_edges
+            )));
+        }
+        let mean = get_f32(s, &format!("{p}.mean"), &[bh.n_columns])?;
+        let row_ptr: Vec<usize> = get_u32(s, &format!("{p}.row_ptr"), &[bh.n_components + 1])?
+            .iter()
+            .map(|&x| x as usize)
+            .collect();
+        let col_idx = get_u32(s, &format!("{p}.col_idx"), &[bh.nnz])?;
+        let values = get_f32(s, &format!("{p}.values"), &[bh.nnz])?;
+        if row_ptr[0] != 0
+            || *row_ptr.last().unwrap() != bh.nnz
+            || row_ptr.windows(2).any(|w| w[0] > w[1])
+            || col_idx.iter().any(|&c| c as usize >= bh.n_columns)
+        {
+            return Err(bad(format!("{p}: inconsistent sparse component storage")));
+        }
+        let range = get_f32(s, &format!("{p}.beta_range"), &[bh.n_components, 2])?;
+        blocks.push(Block {
+            name: bh.name.clone(),
+            columns,
+            mean,
+            components: SparseRows {
+                n_cols: bh.n_columns,
+                row_ptr,
+                col_idx,
+                values,
+            },
+            beta_range: range.chunks_exact(2).map(|c| [c[0], c[1]]).collect(),
+        });
+    }
+    Ok(blocks)
+}
+
+/// The keypoint rows of a model store (`keypoints.*`, CSR over template vertices).
+fn read_keypoint_rows(s: &TensorStore, h: &Header) -> Result<Vec<Vec<(u32, f64)>>> {
+    let bad = |w: String| ModelError::Invalid(w);
+    let nkp = h.keypoint_names.len();
+    let kptr = get_u32(s, "keypoints.row_ptr", &[nkp + 1])?;
+    let nnz = *kptr.last().unwrap_or(&0) as usize;
+    let kv = get_u32(s, "keypoints.vertex", &[nnz])?;
+    let kw = get_f64(s, "keypoints.weight", &[nnz])?;
+    if kptr.windows(2).any(|w| w[0] > w[1]) || kv.iter().any(|&v| v as usize >= h.n_vertices) {
+        return Err(bad("keypoints: inconsistent storage".into()));
+    }
+    let rows = kptr
+        .windows(2)
+        .map(|w| {
+            (w[0] as usize..w[1] as usize)
+                .map(|i| (kv[i], kw[i]))
+                .collect()
+        })
+        .collect();
+    Ok(rows)
 }
 
 /// `K_LB + K_AB − 2`: the body coefficients the MLPs see (without the two mean coefficients).

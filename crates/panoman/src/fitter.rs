@@ -4,9 +4,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use panoman_fit::fit::{FitOptions, GroupResidual, StageReport, keypoint_residuals};
+use panoman_fit::ik::{IkConfig, IkResult, IkSolver};
 use panoman_fit::{Constraints, IkIcpOptions, Rig, fit_frame, ik_config_for_noise, ik_fit, ik_icp};
 use panoman_human::assets;
-use panoman_human::ik::{IkConfig, IkResult, IkSolver};
 use panoman_human::params::GeneratorParams;
 use panoman_mesh::geom::V3;
 use panoman_model::model::Params;
@@ -313,7 +313,7 @@ impl Fitter {
         &self,
         c: &Constraints,
         ikc: &IkConfig,
-        warm: Option<&panoman_human::ik::IkState>,
+        warm: Option<&panoman_fit::ik::IkState>,
     ) -> Result<IkResult> {
         let cfg = IkConfig {
             initial_state: warm.cloned(),

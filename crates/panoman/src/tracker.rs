@@ -1,7 +1,7 @@
 //! [`Tracker`]: a sequence of frames fitted in order, for PanoMan and the LBS baseline.
 use panoman_fit::fit::{FitOptions, warm_fit_options};
+use panoman_fit::ik::{IkConfig, IkState};
 use panoman_fit::{Sequence, ik_config_for_noise};
-use panoman_human::ik::{IkConfig, IkState};
 
 use crate::error::Result;
 use crate::fitter::{FitOutput, FitRequest, Fitter, Method};

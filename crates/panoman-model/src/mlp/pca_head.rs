@@ -297,36 +297,7 @@ impl PcaHead {
                 "PCA head of an empty {n}×{d} matrix"
             )));
         }
-        if opts.max_rank == 0 || opts.min_rank > opts.max_rank {
-            return Err(ModelError::Invalid(format!(
-                "PCA head ranks: need 1 ≤ max_rank and min_rank ≤ max_rank, got {}..{}",
-                opts.min_rank, opts.max_rank
-            )));
-        }
-        if !(opts.target_explained > 0.0 && opts.target_explained <= 1.0) {
-            return Err(ModelError::Invalid(format!(
-                "PCA head target_explained must lie in (0, 1], got {}",
-                opts.target_explained
-            )));
-        }
-        let w: Vec<f32> = match weights {
-            None => vec![1.0; d],
-            Some(w) => {
-                if w.len() != d {
-                    return Err(ModelError::Invalid(format!(
-                        "PCA head has {} weights for {d} columns",
-                        w.len()
-                    )));
-                }
-                if let Some(j) = w.iter().position(|v| !(v.is_finite() && *v > 0.0)) {
-                    return Err(ModelError::Invalid(format!(
-                        "PCA head weight {j} = {} is not finite and > 0",
-                        w[j]
-                    )));
-                }
-                w.to_vec()
-            }
-        };
+        let w = head_weights(d, weights, opts)?;
         // Column means (f64, per column: deterministic) and a finiteness check.
         let stats: Vec<(f64, bool)> = (0..d)
             .into_par_iter()
@@ -574,4 +545,39 @@ impl PcaHead {
             *o = m + *o / w;
         }
     }
+}
+
+/// Checks the options of [`PcaHead::fit`] and returns the column weights (`weights`, or 1
+/// for each of the `d` columns).
+fn head_weights(d: usize, weights: Option<&[f32]>, opts: &PcaHeadOptions) -> Result<Vec<f32>> {
+    if opts.max_rank == 0 || opts.min_rank > opts.max_rank {
+        return Err(ModelError::Invalid(format!(
+            "PCA head ranks: need 1 ≤ max_rank and min_rank ≤ max_rank, got {}..{}",
+            opts.min_rank, opts.max_rank
+        )));
+    }
+    if !(opts.target_explained > 0.0 && opts.target_explained <= 1.0) {
+        return Err(ModelError::Invalid(format!(
+            "PCA head target_explained must lie in (0, 1], got {}",
+            opts.target_explained
+        )));
+    }
+    Ok(match weights {
+        None => vec![1.0; d],
+        Some(w) => {
+            if w.len() != d {
+                return Err(ModelError::Invalid(format!(
+                    "PCA head has {} weights for {d} columns",
+                    w.len()
+                )));
+            }
+            if let Some(j) = w.iter().position(|v| !(v.is_finite() && *v > 0.0)) {
+                return Err(ModelError::Invalid(format!(
+                    "PCA head weight {j} = {} is not finite and > 0",
+                    w[j]
+                )));
+            }
+            w.to_vec()
+        }
+    })
 }

@@ -1,9 +1,9 @@
 //! A held-out motion clip: PanoMan tracked with warm starts versus the LBS rig fitted per
 //! frame (warm-started from its own previous frame).
 use panoman_fit::fit::warm_fit_options;
+use panoman_fit::ik::{IkConfig, IkState};
 use panoman_fit::{Constraints, Sequence, ik_fit};
 use panoman_human::clip::{Clip, ClipConfig};
-use panoman_human::ik::{IkConfig, IkState};
 use panoman_human::keypoints::KeypointsFile;
 use serde::{Deserialize, Serialize};
 

@@ -13,10 +13,10 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use panoman_fit::fit::FitOptions;
+use panoman_fit::ik::{IkConfig, IkSolver};
 use panoman_fit::{Fitter as ShellFitter, Rig};
 use panoman_human::assets::AssetDir;
 use panoman_human::dataset::Dataset;
-use panoman_human::ik::{IkConfig, IkSolver};
 use panoman_human::regions::Regions;
 use panoman_human::template::{full_template, small_template};
 use panoman_mesh::geom::V3;

@@ -1,10 +1,10 @@
 //! The twist study (Fig. 1, 13): a limb twisted about its bone by the LBS rig, fitted from
 //! its keypoints by the LBS rig and by PanoMan; cross-section radii and volume against rest.
 use panoman_fit::fit::keypoint_residuals;
+use panoman_fit::ik::IkConfig;
 use panoman_fit::twist::LimbSegment;
 use panoman_fit::{Constraints, ik_fit, init_of};
 use panoman_human::generator::Identity;
-use panoman_human::ik::IkConfig;
 use panoman_human::keypoints::KeypointsFile;
 use panoman_human::params::{PoseParams, ShapeParams};
 use panoman_mesh::TriMesh;

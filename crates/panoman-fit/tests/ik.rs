@@ -1,4 +1,4 @@
-//! Inverse kinematics ([`panoman_human::ik`]): the analytic Jacobian against finite
+//! Inverse kinematics ([`panoman_fit::ik`]): the analytic Jacobian against finite
 //! differences, the fast keypoint model against the generator's mesh, recovery of generated
 //! people from their exact keypoints on the small topology, invalid targets, a body-only fit
 //! and unreachable targets; surface point targets (their model and Jacobian, and recovery
@@ -6,8 +6,8 @@
 
 use std::sync::OnceLock;
 
+use panoman_fit::ik::{IkConfig, IkSolver, IkState, IkTargets, IkVariable, PointTarget};
 use panoman_human::generator::Generator;
-use panoman_human::ik::{IkConfig, IkSolver, IkState, IkTargets, IkVariable, PointTarget};
 use panoman_human::keypoints::{KeypointGroup, KeypointSet, load_or_build};
 use panoman_human::outputs::{OutputTopology, TopologyMap};
 use panoman_human::params::GeneratorParams;
@@ -332,7 +332,7 @@ fn invalid_targets_are_errors() {
     assert!(t.set_named("elbow", [0.0; 3], 1.0).is_err());
     // Built directly, a NaN target is caught by the solver.
     let nan = IkTargets {
-        targets: vec![panoman_human::ik::IkTarget {
+        targets: vec![panoman_fit::ik::IkTarget {
             index: 3,
             position: [0.1, f64::NAN, 0.0],
             weight: 1.0,

@@ -1,11 +1,11 @@
 //! IK benchmark: generates held-out-like people (seeded identity, body pose, hand gestures,
 //! facial expression, global rotation and translation), computes their exact TC-127 keypoints,
-//! fits the rig to them with [`panoman_human::ik::IkSolver`] from a cold start and prints the
+//! fits the rig to them with [`panoman_fit::ik::IkSolver`] from a cold start and prints the
 //! time per fit, the keypoint residuals and the per-vertex error of the fitted posed mesh
 //! against the truth per part (body / face / left hand / right hand).
 //!
 //! ```sh
-//! cargo run --release -p panoman-human --example ik_bench [-- N [full|small] [known-shape]]
+//! cargo run --release -p panoman-fit --example ik_bench [-- N [full|small] [known-shape]]
 //! ```
 //!
 //! `known-shape` gives the solver the true shape (phenotype and face units as the start, the
@@ -14,8 +14,8 @@
 
 use std::time::Instant;
 
+use panoman_fit::ik::{IkConfig, IkSolver, IkTargets};
 use panoman_human::generator::Generator;
-use panoman_human::ik::{IkConfig, IkSolver, IkTargets};
 use panoman_human::keypoints::{KeypointGroup, load_or_build};
 use panoman_human::outputs::{OutputTopology, TopologyMap};
 use panoman_human::params::GeneratorParams;
