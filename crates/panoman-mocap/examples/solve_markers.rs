@@ -1,0 +1,56 @@
+//! Solves a marker capture and prints the report's figures.
+//!
+//! `cargo run --release -p panoman-mocap --example solve_markers -- MODEL CAPTURE [lbs|panoman] [A:B:step] [OUT]`
+use std::path::PathBuf;
+
+use panoman_mocap::solve::SolveOptions;
+use panoman_mocap::solve_run::{SolveRequest, parse_frames, solve_capture, write_solve};
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let a: Vec<String> = std::env::args().collect();
+    let model = panoman::Model::load(&a[1])?;
+    let method = match a.get(3).map(String::as_str) {
+        Some("lbs") => panoman::Method::Lbs,
+        _ => panoman::Method::PanoMan,
+    };
+    let req = SolveRequest {
+        markers: PathBuf::from(&a[2]),
+        vsk: None,
+        marker_map: None,
+        frames: parse_frames(a.get(4).map_or("0:", String::as_str))?,
+        up: None,
+        options: SolveOptions {
+            method,
+            ..SolveOptions::default()
+        },
+    };
+    let out = solve_capture(&model, &req)?;
+    let r = &out.report;
+    println!(
+        "{:?} frames {} residual mean {:.2} max {:.2} mm outliers {} calib {:.2}s (res {:.2} mm shift {:.1} mm) warm {:.1} ms/frame",
+        r.method,
+        r.n_frames,
+        r.mean_residual_mm,
+        r.max_residual_mm,
+        r.outliers,
+        out.calibration.seconds,
+        out.calibration.mean_residual_mm,
+        out.calibration.mean_marker_shift_mm,
+        r.times["tracking_warm_ms_per_frame"]
+    );
+    if let Some(h) = &r.held_out_marker_error_mm {
+        let mut w: Vec<(&String, &f64)> = h.per_marker.iter().collect();
+        w.sort_by(|x, y| y.1.total_cmp(x.1));
+        println!(
+            "held-out mean {:.2} mm over {} frames/fold in {:.1}s; worst {:?}",
+            h.mean,
+            h.frames,
+            h.seconds,
+            &w[..5.min(w.len())]
+        );
+    }
+    if let Some(o) = a.get(5) {
+        write_solve(std::path::Path::new(o), &out, model.faces())?;
+    }
+    Ok(())
+}
