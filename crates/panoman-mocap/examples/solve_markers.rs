@@ -6,6 +6,13 @@ use std::path::PathBuf;
 use panoman_mocap::solve::SolveOptions;
 use panoman_mocap::solve_run::{SolveRequest, parse_frames, solve_capture, write_solve};
 
+fn env(k: &str, d: f64) -> f64 {
+    std::env::var(k)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(d)
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().collect();
     let model = panoman::Model::load(&a[1])?;
@@ -21,6 +28,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         up: None,
         options: SolveOptions {
             method,
+            calibration_rounds: env("ROUNDS", 4.0) as usize,
+            marker_prior_m: env("PRIOR", 0.06),
+            held_out_folds: env("FOLDS", 5.0) as usize,
             ..SolveOptions::default()
         },
     };
@@ -38,6 +48,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         out.calibration.mean_marker_shift_mm,
         r.times["tracking_warm_ms_per_frame"]
     );
+    let mut w: Vec<(&String, &f64)> = r
+        .per_marker_residual_mm
+        .iter()
+        .filter(|(_, v)| v.is_finite())
+        .collect();
+    w.sort_by(|x, y| y.1.total_cmp(x.1));
+    println!("worst residuals {:?}", &w[..8.min(w.len())]);
     if let Some(h) = &r.held_out_marker_error_mm {
         let mut w: Vec<(&String, &f64)> = h.per_marker.iter().collect();
         w.sort_by(|x, y| y.1.total_cmp(x.1));

@@ -47,13 +47,13 @@ pub struct SolveOptions {
     pub method: Method,
     /// Frames of the calibration (spread over the capture). Default 12.
     pub calibration_frames: usize,
-    /// Pose / marker-placement alternations. Default 3.
+    /// Pose / marker-placement alternations. Default 4.
     pub calibration_rounds: usize,
-    /// Largest move of a marker's surface point from its initial place (m). Default 0.03.
+    /// Largest move of a marker's surface point from its initial place (m). Default 0.06.
     pub marker_prior_m: f64,
-    /// σ of the Geman–McClure weights (m). Default 0.02.
+    /// σ of the Geman–McClure weights (m). Default 0.03.
     pub robust_sigma_m: f64,
-    /// Residual above which a marker counts as an outlier (m). Default 0.04.
+    /// Residual above which a marker counts as an outlier (m). Default 0.05.
     pub outlier_m: f64,
     /// IK iterations of a warm-started tracking frame. Default 8.
     pub track_iterations: usize,
@@ -70,10 +70,10 @@ impl Default for SolveOptions {
         SolveOptions {
             method: Method::PanoMan,
             calibration_frames: 12,
-            calibration_rounds: 3,
-            marker_prior_m: 0.03,
-            robust_sigma_m: 0.02,
-            outlier_m: 0.04,
+            calibration_rounds: 4,
+            marker_prior_m: 0.06,
+            robust_sigma_m: 0.03,
+            outlier_m: 0.05,
             track_iterations: 8,
             track_rounds: 2,
             held_out_folds: 5,
@@ -178,6 +178,8 @@ pub struct SolveReport {
     pub max_residual_mm: f64,
     /// Outlier marker-frames.
     pub outliers: usize,
+    /// Mean residual per marker over the solved frames (mm).
+    pub per_marker_residual_mm: BTreeMap<String, f64>,
     /// Calibration: frames, time (s), residual and marker shift (mm), phenotype.
     pub calibration: serde_json::Value,
     /// Times per stage (s; `tracking_warm_ms_per_frame` in ms).
@@ -315,12 +317,12 @@ impl MarkerSolver {
         fit_phenotype: bool,
         rounds: usize,
         iterations: usize,
+        sigma: f64,
     ) -> Result<IkOut> {
         let inv = |e: panoman_human::HumanError| MocapError::Invalid {
             what: format!("marker IK: {e}"),
         };
         let nm = map.markers.len();
-        let o = &self.options;
         let mut weights: Vec<f64> = (0..nm)
             .map(|i| f64::from(u8::from(active[i] && finite(&obs[i]))))
             .collect();
@@ -371,7 +373,7 @@ impl MarkerSolver {
             residuals = self.residuals(map, obs, active, &cur);
             for i in 0..nm {
                 if residuals[i].is_finite() {
-                    let s2 = o.robust_sigma_m * o.robust_sigma_m;
+                    let s2 = sigma * sigma;
                     let q = s2 / (s2 + residuals[i] * residuals[i]);
                     weights[i] = q * q;
                 }
@@ -442,6 +444,7 @@ impl MarkerSolver {
                 true,
                 3,
                 40,
+                0.15,
             )?;
             states.push((r.result.state.clone(), r.result.posed.clone()));
         }
@@ -455,12 +458,16 @@ impl MarkerSolver {
             .map(|m| surface_point(self.faces(), &rest, m.triangle, m.barycentric))
             .collect();
         let mut mean_res = f64::NAN;
-        for _ in 0..o.calibration_rounds.max(1) {
+        for round in 0..o.calibration_rounds.max(1) {
+            // Wide weights first (the initial placement may be centimetres off), then the
+            // tracking σ.
+            let sigma = (0.1 / (1 << round) as f64).max(o.robust_sigma_m);
             let mut outs = Vec::with_capacity(calib.len());
             for (k, &f) in calib.iter().enumerate() {
                 let (mut st, mesh) = states[k].clone();
                 st.phenotype = phen;
-                let r = self.ik_frame(&map, seq.frame(f), active, st, &mesh, false, 2, 20)?;
+                let r =
+                    self.ik_frame(&map, seq.frame(f), active, st, &mesh, false, 2, 20, sigma)?;
                 states[k] = (r.result.state.clone(), r.result.posed.clone());
                 outs.push(r);
             }
@@ -545,7 +552,7 @@ impl MarkerSolver {
             m.triangle = t;
             m.barycentric = b;
             let off0 = initial.markers[i].offset_m;
-            m.offset_m = ((dsum + lambda * off0) / (wsum + lambda)).clamp(0.003, 0.04);
+            m.offset_m = ((dsum + lambda * off0) / (wsum + lambda)).clamp(0.003, 0.06);
         }
     }
 }
@@ -681,10 +688,21 @@ impl MarkerSolver {
                 false,
                 o.track_rounds,
                 o.track_iterations,
+                o.robust_sigma_m,
             )?,
             None => {
                 let st = self.cold_state(map, obs, active, cal.phenotype);
-                self.ik_frame(map, obs, active, st, &self.template.vertices, false, 4, 40)?
+                self.ik_frame(
+                    map,
+                    obs,
+                    active,
+                    st,
+                    &self.template.vertices,
+                    false,
+                    4,
+                    40,
+                    o.robust_sigma_m,
+                )?
             }
         };
         let rig_params = ik.result.params.clone();

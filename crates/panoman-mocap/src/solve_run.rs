@@ -264,6 +264,15 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
         mean_residual_mm: mean_all,
         max_residual_mm: max_all,
         outliers: solved.iter().map(|s| s.outliers).sum(),
+        per_marker_residual_mm: map
+            .markers
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                let (mean, _, _) = mean_max_mm(solved.iter().map(|s| s.residuals[i]));
+                (m.name.clone(), mean)
+            })
+            .collect(),
         calibration: serde_json::json!({
             "frames": cal.frames,
             "seconds": cal.seconds,
