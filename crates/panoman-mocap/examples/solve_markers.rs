@@ -22,7 +22,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let req = SolveRequest {
         markers: PathBuf::from(&a[2]),
-        vsk: None,
+        vsk: std::env::var_os("VSK").map(PathBuf::from),
         marker_map: None,
         frames: parse_frames(a.get(4).map_or("0:", String::as_str))?,
         up: None,
@@ -31,6 +31,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             calibration_rounds: env("ROUNDS", 4.0) as usize,
             marker_prior_m: env("PRIOR", 0.06),
             held_out_folds: env("FOLDS", 5.0) as usize,
+            track_iterations: env("ITERS", 8.0) as usize,
+            held_out_step: env("STEP", 10.0) as usize,
             ..SolveOptions::default()
         },
     };
@@ -65,6 +67,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             h.seconds,
             &w[..5.min(w.len())]
         );
+    }
+    if let Ok(p) = std::env::var("REPORT") {
+        std::fs::write(p, serde_json::to_vec_pretty(&out.report)?)?;
     }
     if let Some(o) = a.get(5) {
         write_solve(std::path::Path::new(o), &out, model.faces())?;

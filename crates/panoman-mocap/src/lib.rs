@@ -26,6 +26,7 @@
 #![warn(missing_docs)]
 
 pub mod bvh;
+pub mod bvh_export;
 pub mod c3d;
 pub mod csm;
 mod error;

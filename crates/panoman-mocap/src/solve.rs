@@ -147,6 +147,11 @@ pub struct HeldOut {
     pub mean: f64,
     /// Mean per marker (mm).
     pub per_marker: BTreeMap<String, f64>,
+    /// Mean over the held-out observations that the solve with every marker fits within
+    /// `outlier_m` (capture glitches left out; mm). `NaN` when no full solve was given.
+    pub mean_inliers: f64,
+    /// Held-out observations (all / inliers).
+    pub observations: [usize; 2],
     /// How it was measured.
     pub method: String,
     /// Folds.
@@ -827,7 +832,9 @@ pub fn mean_max_mm(r: impl IntoIterator<Item = f64>) -> (f64, f64, usize) {
 
 impl MarkerSolver {
     /// The held-out marker error (see the module docs) on `frames` (every
-    /// `held_out_step`-th is used) with the full calibration `full`.
+    /// `held_out_step`-th is used) with the full calibration `full`; `full_solve` (the
+    /// tracking with every marker) marks glitch observations for
+    /// [`HeldOut::mean_inliers`].
     ///
     /// # Errors
     /// Calibration or tracking failures of a fold.
@@ -836,7 +843,14 @@ impl MarkerSolver {
         seq: &MarkerSequence,
         frames: &[usize],
         full: &Calibration,
+        full_solve: Option<&[SolvedFrame]>,
     ) -> Result<HeldOut> {
+        let full_res: BTreeMap<usize, &[f64]> = full_solve
+            .unwrap_or(&[])
+            .iter()
+            .map(|s| (s.frame, s.residuals.as_slice()))
+            .collect();
+        let mut inliers: Vec<f64> = Vec::new();
         let t0 = Instant::now();
         let k = self.options.held_out_folds.max(2);
         let nm = full.map.markers.len();
@@ -854,7 +868,14 @@ impl MarkerSolver {
                 let mm = self.model_markers(&full.map, &s.vertices);
                 let obs = seq.frame(s.frame);
                 for i in (0..nm).filter(|&i| !active[i] && finite(&obs[i])) {
-                    per[i].push(norm(sub(mm[i], obs[i])));
+                    let e = norm(sub(mm[i], obs[i]));
+                    per[i].push(e);
+                    if full_res
+                        .get(&s.frame)
+                        .is_some_and(|r| r[i] <= self.options.outlier_m)
+                    {
+                        inliers.push(e);
+                    }
                 }
             }
         }
@@ -870,6 +891,12 @@ impl MarkerSolver {
         Ok(HeldOut {
             mean: 1e3 * all.iter().sum::<f64>() / all.len().max(1) as f64,
             per_marker,
+            mean_inliers: if full_solve.is_some() {
+                1e3 * inliers.iter().sum::<f64>() / inliers.len().max(1) as f64
+            } else {
+                f64::NAN
+            },
+            observations: [all.len(), inliers.len()],
             method: format!(
                 "{k}-fold over markers (marker i in fold i mod {k}); each fold calibrated and tracked without its markers on every {}-th frame; error = |observed − (surface point + offset·n̂)| on the solved mesh, with the held-out marker's placement from the full calibration (MoSh)",
                 self.options.held_out_step.max(1)

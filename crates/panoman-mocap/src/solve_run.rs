@@ -221,7 +221,7 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
     let solved = solver.track(&seq, &frames, &cal, &all)?;
     let tracking_s = t.elapsed().as_secs_f64();
     let held = if req.options.held_out_folds > 0 {
-        Some(solver.held_out(&seq, &frames, &cal)?)
+        Some(solver.held_out(&seq, &frames, &cal, Some(&solved))?)
     } else {
         None
     };
@@ -299,8 +299,9 @@ fn json_bytes(v: &impl serde::Serialize) -> Vec<u8> {
     b
 }
 
-/// Writes `mesh_NNNNN.obj`, `params_NNNNN.json` (the rig's generator parameters, and
-/// PanoMan's under `"panoman"`), `marker_map.json` and `report.json` into `dir`, each file
+/// Writes `mesh_NNNNN.obj`, `params_NNNNN.json` (the rig's generator parameters, for
+/// `generate`, `fit --motion`, `mocap export`), `panoman_params_NNNNN.json` (PanoMan's α, β
+/// and placement; PanoMan only), `marker_map.json` and `report.json` into `dir`, each file
 /// atomically.
 ///
 /// # Errors
@@ -323,12 +324,13 @@ pub fn write_solve(dir: &Path, out: &SolveOutput, faces: &[[u32; 3]]) -> Result<
             faces: faces.to_vec(),
         };
         panoman_mesh::io::obj::write_obj(&p, &mesh).map_err(io(p.clone()))?;
-        let mut v = s.rig_params.to_json(bone_names);
-        if let Some(pm) = &s.params {
-            v["panoman"] = serde_json::to_value(pm).unwrap_or(serde_json::Value::Null);
-        }
+        let v = s.rig_params.to_json(bone_names);
         let p = dir.join(format!("params_{:05}.json", s.frame));
         write_bytes_atomically(&p, &json_bytes(&v)).map_err(io(p.clone()))?;
+        if let Some(pm) = &s.params {
+            let p = dir.join(format!("panoman_params_{:05}.json", s.frame));
+            write_bytes_atomically(&p, &json_bytes(pm)).map_err(io(p.clone()))?;
+        }
     }
     let p = dir.join("marker_map.json");
     write_bytes_atomically(&p, &json_bytes(&out.calibration.map)).map_err(io(p.clone()))?;

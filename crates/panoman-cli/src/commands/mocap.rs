@@ -17,6 +17,28 @@ pub enum MocapCommand {
     Solve(SolveArgs),
     /// Retarget a CMU BVH to the rig: generator parameters per frame + joint error.
     Retarget(RetargetArgs),
+    /// Write a folder of per-frame generator parameters (solve / retarget output) as BVH.
+    Export(ExportArgs),
+}
+
+/// Arguments of `panoman mocap export`.
+#[derive(Args, Debug)]
+#[command(
+    after_help = "Example:\n  panoman mocap export --params solve/ --model M.safetensors --fps 120 --bvh solve.bvh\n\nOne joint per rig bone (rest heads, metres), channels Zrotation Yrotation Xrotation (root also positions); the identity is the first frame's shape."
+)]
+pub struct ExportArgs {
+    /// Output BVH.
+    #[arg(long)]
+    pub bvh: PathBuf,
+    /// Folder of `params_*.json` generator-parameter files (name order = frame order).
+    #[arg(long)]
+    pub params: PathBuf,
+    /// Model whose embedded rig is used (default: the rig of the assets).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Frame rate (Hz).
+    #[arg(long, default_value_t = 120.0)]
+    pub fps: f64,
 }
 
 /// Which model solves the markers.
@@ -40,7 +62,7 @@ pub enum UpArg {
 /// Arguments of `panoman mocap solve`.
 #[derive(Args, Debug)]
 #[command(
-    after_help = "Example:\n  panoman mocap solve --markers nick_freeform_001.c3d --vsk Nick01.vsk --model M.safetensors --frames 0:400:2 --out solve/\n\nWrites mesh_NNNNN.obj, params_NNNNN.json, marker_map.json and report.json (residuals, times, held_out_marker_error_mm)."
+    after_help = "Example:\n  panoman mocap solve --markers nick_freeform_001.c3d --vsk Nick01.vsk --model M.safetensors --frames 0:400:2 --out solve/\n\nWrites mesh_NNNNN.obj, params_NNNNN.json (rig), panoman_params_NNNNN.json (PanoMan), marker_map.json and report.json (residuals, times, held_out_marker_error_mm)."
 )]
 pub struct SolveArgs {
     /// Marker capture (.c3d or .csm).
@@ -104,7 +126,58 @@ pub fn run(c: MocapCommand) -> Result<()> {
     match c {
         MocapCommand::Solve(a) => run_solve(a),
         MocapCommand::Retarget(a) => run_retarget(a),
+        MocapCommand::Export(a) => run_export(a),
     }
+}
+
+fn generator_of(
+    model: Option<&std::path::Path>,
+) -> Result<std::sync::Arc<panoman_human::generator::Generator>> {
+    Ok(match model {
+        Some(m) => {
+            let model = panoman::Model::load(m)?;
+            match &model.inner().rig {
+                Some(r) => r.generator.clone(),
+                None => bail!("{}: the model has no embedded rig", m.display()),
+            }
+        }
+        None => std::sync::Arc::new(panoman_human::generator::Generator::load_default()?),
+    })
+}
+
+fn run_export(a: ExportArgs) -> Result<()> {
+    if !(a.fps > 0.0 && a.fps.is_finite()) {
+        bail!("--fps {} must be > 0", a.fps);
+    }
+    let generator = generator_of(a.model.as_deref())?;
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&a.params)
+        .with_context(|| a.params.display().to_string())?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with("params_") && n.ends_with(".json"))
+        })
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        bail!("{}: no params_*.json files", a.params.display());
+    }
+    let params = files
+        .iter()
+        .map(|p| generator.read_params(p))
+        .collect::<std::result::Result<Vec<_>, _>>()?;
+    let identity = generator.identity(&params[0].shape)?;
+    let poses: Vec<_> = params.into_iter().map(|p| p.pose).collect();
+    let bvh = panoman_mocap::bvh_export::rig_motion_bvh(&identity, &poses, 1.0 / a.fps)?;
+    bvh.write(&a.bvh)?;
+    println!(
+        "{} frames, {} joints → {}",
+        poses.len(),
+        bvh.joints.len(),
+        a.bvh.display()
+    );
+    Ok(())
 }
 
 fn run_solve(a: SolveArgs) -> Result<()> {
@@ -152,16 +225,7 @@ fn run_retarget(a: RetargetArgs) -> Result<()> {
     use panoman_mocap::bvh::{CMU_UNIT_M, read_bvh};
     use panoman_mocap::retarget::{CMU_EVAL_JOINTS, CmuRetarget, fit_cmu_shape, retarget_error};
     let bvh = read_bvh(&a.bvh)?.scaled(CMU_UNIT_M);
-    let generator = match &a.model {
-        Some(m) => {
-            let model = panoman::Model::load(m)?;
-            match &model.inner().rig {
-                Some(r) => r.generator.clone(),
-                None => bail!("{}: the model has no embedded rig", m.display()),
-            }
-        }
-        None => std::sync::Arc::new(panoman_human::generator::Generator::load_default()?),
-    };
+    let generator = generator_of(a.model.as_deref())?;
     let n = bvh.n_frames();
     let mut shape = panoman_human::params::ShapeParams::default();
     if a.shape_frames > 0 && n > 1 {
