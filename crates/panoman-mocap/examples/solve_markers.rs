@@ -61,8 +61,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut w: Vec<(&String, &f64)> = h.per_marker.iter().collect();
         w.sort_by(|x, y| y.1.total_cmp(x.1));
         println!(
-            "held-out mean {:.2} mm over {} frames/fold in {:.1}s; worst {:?}",
+            "held-out mean {:.2} mm (inliers {:.2}) over {} frames/fold in {:.1}s; worst {:?}",
             h.mean,
+            h.mean_inliers,
             h.frames,
             h.seconds,
             &w[..5.min(w.len())]

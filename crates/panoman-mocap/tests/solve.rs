@@ -90,6 +90,7 @@ fn lbs_solves_the_c3d_excerpt_with_held_out_error() {
     );
     assert!(h.per_marker.len() >= 50);
     assert!(h.method.contains("5-fold"));
+    assert!(h.mean_inliers.is_finite() && h.observations[1] <= h.observations[0]);
     let dir = tmp("lbs");
     write_solve(&dir, &out, m.faces()).expect("written");
     let rep: serde_json::Value =
