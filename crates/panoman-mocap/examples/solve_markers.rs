@@ -31,6 +31,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             calibration_rounds: env("ROUNDS", 4.0) as usize,
             marker_prior_m: env("PRIOR", 0.06),
             held_out_folds: env("FOLDS", 5.0) as usize,
+            pose_prior: env("POSE_PRIOR", 1e-6),
             track_iterations: env("ITERS", 8.0) as usize,
             held_out_step: env("STEP", 10.0) as usize,
             ..SolveOptions::default()

@@ -59,6 +59,8 @@ pub struct SolveOptions {
     pub track_iterations: usize,
     /// IRLS rounds (normals and weights updated) per tracking frame. Default 2.
     pub track_rounds: usize,
+    /// λ_θ of the rig's pose prior (m², see `IkConfig::pose_prior`). Default 1e-6.
+    pub pose_prior: f64,
     /// Folds of the held-out marker error (0: none). Default 5.
     pub held_out_folds: usize,
     /// Every this many frames of the solved range are tracked per fold. Default 10.
@@ -76,6 +78,7 @@ impl Default for SolveOptions {
             outlier_m: 0.05,
             track_iterations: 8,
             track_rounds: 2,
+            pose_prior: 1e-6,
             held_out_folds: 5,
             held_out_step: 10,
         }
@@ -369,6 +372,7 @@ impl MarkerSolver {
                 fit_phenotype,
                 fit_face_units: Some(false),
                 max_iterations: iterations,
+                pose_prior: self.options.pose_prior,
                 initial_state: Some(state.clone()),
                 ..IkConfig::default()
             };
