@@ -63,6 +63,9 @@ enum Command {
     Export(commands::export::ExportArgs),
     /// Write one self-contained offline HTML viewer of a .glb, a mesh or a mesh folder.
     View(commands::view::ViewArgs),
+    /// Motion capture: solve optical markers (PanoMan or LBS), retarget CMU BVH to the rig.
+    #[command(subcommand)]
+    Mocap(commands::mocap::MocapCommand),
 }
 
 fn main() -> ExitCode {
@@ -95,6 +98,7 @@ fn main() -> ExitCode {
         Command::EmbedRig(a) => commands::embed_rig::run(a),
         Command::Export(a) => commands::export::run(a),
         Command::View(a) => commands::view::run(a),
+        Command::Mocap(c) => commands::mocap::run(c),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

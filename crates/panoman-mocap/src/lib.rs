@@ -15,6 +15,10 @@
 //! * [`vsk::read_vsk`] → [`vsk::Vsk`].
 //! * [`bvh::read_bvh`] → [`bvh::Bvh`], [`bvh::Bvh::to_text`], [`bvh::Bvh::joint_positions`].
 //! * [`fetch::fetch_real_mocap`] downloads the real captures (Debian packages).
+//! * [`marker_map`]: marker name → template surface point + offset (shipped sets
+//!   `data/cmu53.json`, `data/plugin_gait43.json`); [`solve`]: MoSh-style calibration,
+//!   tracking (PanoMan or LBS) and held-out marker error; [`solve_run::solve_capture`] runs it
+//!   from files.
 //!
 //! Every error is a [`MocapError`] whose message names the file and what is wrong; no
 //! reader panics on malformed input, and allocations are bounded by the input's size.
@@ -22,12 +26,16 @@
 #![warn(missing_docs)]
 
 pub mod bvh;
+pub mod bvh_export;
 pub mod c3d;
 pub mod csm;
 mod error;
 pub mod fetch;
+pub mod marker_map;
 pub mod markers;
 pub mod retarget;
+pub mod solve;
+pub mod solve_run;
 pub mod vsk;
 
 pub use error::{MocapError, Result};

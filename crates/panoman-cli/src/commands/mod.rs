@@ -12,6 +12,7 @@ pub mod export;
 pub mod fit;
 pub mod generate;
 pub mod keypoints;
+pub mod mocap;
 pub mod pose;
 pub mod render;
 pub mod roundtrip;

@@ -1,0 +1,286 @@
+//! `panoman mocap`: optical markers solved with PanoMan or the LBS rig, and CMU BVH motion
+//! retargeted to the rig; the logic lives in `panoman-mocap` (`solve`, `solve_run`,
+//! `retarget`).
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Subcommand, ValueEnum};
+use panoman_mesh::io::write_bytes_atomically;
+use panoman_mocap::markers::UpAxis;
+use panoman_mocap::solve::SolveOptions;
+use panoman_mocap::solve_run::{SolveRequest, parse_frames, solve_capture, write_solve};
+use std::path::PathBuf;
+
+/// `panoman mocap …`.
+#[derive(Subcommand, Debug)]
+pub enum MocapCommand {
+    /// Solve optical markers (C3D or CSM), MoSh-style: calibration, tracking, held-out error.
+    Solve(SolveArgs),
+    /// Retarget a CMU BVH to the rig: generator parameters per frame + joint error.
+    Retarget(RetargetArgs),
+    /// Write a folder of per-frame generator parameters (solve / retarget output) as BVH.
+    Export(ExportArgs),
+}
+
+/// Arguments of `panoman mocap export`.
+#[derive(Args, Debug)]
+#[command(
+    after_help = "Example:\n  panoman mocap export --params solve/ --model M.safetensors --fps 120 --bvh solve.bvh\n\nOne joint per rig bone (rest heads, metres), channels Zrotation Yrotation Xrotation (root also positions); the identity is the first frame's shape."
+)]
+pub struct ExportArgs {
+    /// Output BVH.
+    #[arg(long)]
+    pub bvh: PathBuf,
+    /// Folder of `params_*.json` generator-parameter files (name order = frame order).
+    #[arg(long)]
+    pub params: PathBuf,
+    /// Model whose embedded rig is used (default: the rig of the assets).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Frame rate (Hz).
+    #[arg(long, default_value_t = 120.0)]
+    pub fps: f64,
+}
+
+/// Which model solves the markers.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum MethodArg {
+    /// The LBS rig's IK as initializer, then PanoMan's shell fit.
+    Panoman,
+    /// The LBS rig alone.
+    Lbs,
+}
+
+/// Up axis of a marker file.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum UpArg {
+    /// +Y up (Vicon C3D).
+    Y,
+    /// +Z up (Vicon lab frame, CSM).
+    Z,
+}
+
+/// Arguments of `panoman mocap solve`.
+#[derive(Args, Debug)]
+#[command(
+    after_help = "Example:\n  panoman mocap solve --markers nick_freeform_001.c3d --vsk Nick01.vsk --model M.safetensors --frames 0:400:2 --out solve/\n\nWrites mesh_NNNNN.obj, params_NNNNN.json (rig), panoman_params_NNNNN.json (PanoMan), marker_map.json and report.json (residuals, times, held_out_marker_error_mm)."
+)]
+pub struct SolveArgs {
+    /// Marker capture (.c3d or .csm).
+    #[arg(long)]
+    pub markers: PathBuf,
+    /// The subject's Vicon VSK (its marker radius sets the default offsets).
+    #[arg(long)]
+    pub vsk: Option<PathBuf>,
+    /// Marker set (anatomical rules) or placed marker map (JSON); default: the shipped set
+    /// (cmu53 or plugin_gait43) that has every marker of the capture.
+    #[arg(long)]
+    pub marker_map: Option<PathBuf>,
+    /// Model file with an embedded rig (`panoman train` output).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// PanoMan or the LBS rig.
+    #[arg(long, value_enum, default_value = "panoman")]
+    pub method: MethodArg,
+    /// Frames A:B[:step] (B exclusive, empty = to the end).
+    #[arg(long, default_value = "0:")]
+    pub frames: String,
+    /// Up axis when the file does not record it (default: detected from head/foot markers).
+    #[arg(long, value_enum)]
+    pub up: Option<UpArg>,
+    /// Folds of the held-out marker error (0: skip it).
+    #[arg(long, default_value_t = 5)]
+    pub folds: usize,
+    /// Every this many solved frames are tracked per held-out fold.
+    #[arg(long, default_value_t = 10)]
+    pub held_out_step: usize,
+    /// Calibration frames (spread over the solved range).
+    #[arg(long, default_value_t = 12)]
+    pub calibration_frames: usize,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Arguments of `panoman mocap retarget`.
+#[derive(Args, Debug)]
+#[command(
+    after_help = "Example:\n  panoman mocap retarget --bvh 01_01.bvh --model M.safetensors --out retarget/\n\nWrites params_NNNNN.json (generator parameters, usable by `generate` and `fit --motion`) and summary.json (joint error vs the BVH's forward kinematics)."
+)]
+pub struct RetargetArgs {
+    /// CMU BVH (31 joints, frame 0 a T-pose).
+    #[arg(long)]
+    pub bvh: PathBuf,
+    /// Model whose embedded rig is used (default: the rig of the assets).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Frames of the shape fit, spread over the clip (0: default identity).
+    #[arg(long, default_value_t = 24)]
+    pub shape_frames: usize,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Runs `panoman mocap …`.
+pub fn run(c: MocapCommand) -> Result<()> {
+    match c {
+        MocapCommand::Solve(a) => run_solve(a),
+        MocapCommand::Retarget(a) => run_retarget(a),
+        MocapCommand::Export(a) => run_export(a),
+    }
+}
+
+fn generator_of(
+    model: Option<&std::path::Path>,
+) -> Result<std::sync::Arc<panoman_human::generator::Generator>> {
+    Ok(match model {
+        Some(m) => {
+            let model = panoman::Model::load(m)?;
+            match &model.inner().rig {
+                Some(r) => r.generator.clone(),
+                None => bail!("{}: the model has no embedded rig", m.display()),
+            }
+        }
+        None => std::sync::Arc::new(panoman_human::generator::Generator::load_default()?),
+    })
+}
+
+fn run_export(a: ExportArgs) -> Result<()> {
+    if !(a.fps > 0.0 && a.fps.is_finite()) {
+        bail!("--fps {} must be > 0", a.fps);
+    }
+    let generator = generator_of(a.model.as_deref())?;
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&a.params)
+        .with_context(|| a.params.display().to_string())?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with("params_") && n.ends_with(".json"))
+        })
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        bail!("{}: no params_*.json files", a.params.display());
+    }
+    let params = files
+        .iter()
+        .map(|p| generator.read_params(p))
+        .collect::<std::result::Result<Vec<_>, _>>()?;
+    let identity = generator.identity(&params[0].shape)?;
+    let poses: Vec<_> = params.into_iter().map(|p| p.pose).collect();
+    let bvh = panoman_mocap::bvh_export::rig_motion_bvh(&identity, &poses, 1.0 / a.fps)?;
+    bvh.write(&a.bvh)?;
+    println!(
+        "{} frames, {} joints → {}",
+        poses.len(),
+        bvh.joints.len(),
+        a.bvh.display()
+    );
+    Ok(())
+}
+
+fn run_solve(a: SolveArgs) -> Result<()> {
+    let model = panoman::Model::load(&a.model)?;
+    let req = SolveRequest {
+        markers: a.markers.clone(),
+        vsk: a.vsk.clone(),
+        marker_map: a.marker_map.clone(),
+        frames: parse_frames(&a.frames)?,
+        up: a.up.map(|u| match u {
+            UpArg::Y => UpAxis::Y,
+            UpArg::Z => UpAxis::Z,
+        }),
+        options: SolveOptions {
+            method: match a.method {
+                MethodArg::Panoman => panoman::Method::PanoMan,
+                MethodArg::Lbs => panoman::Method::Lbs,
+            },
+            held_out_folds: a.folds,
+            held_out_step: a.held_out_step.max(1),
+            calibration_frames: a.calibration_frames.max(1),
+            ..SolveOptions::default()
+        },
+    };
+    let out = solve_capture(&model, &req)?;
+    write_solve(&a.out, &out, model.faces())?;
+    let r = &out.report;
+    println!(
+        "{} frames: residual mean {:.2} mm (max {:.1}), {} outlier marker-frames; calibration {:.1} s, warm tracking {:.1} ms/frame",
+        r.n_frames,
+        r.mean_residual_mm,
+        r.max_residual_mm,
+        r.outliers,
+        out.calibration.seconds,
+        r.times["tracking_warm_ms_per_frame"]
+    );
+    if let Some(h) = &r.held_out_marker_error_mm {
+        println!("held-out marker error: mean {:.2} mm", h.mean);
+    }
+    println!("wrote {}", a.out.display());
+    Ok(())
+}
+
+fn run_retarget(a: RetargetArgs) -> Result<()> {
+    use panoman_mocap::bvh::{CMU_UNIT_M, read_bvh};
+    use panoman_mocap::retarget::{CMU_EVAL_JOINTS, CmuRetarget, fit_cmu_shape, retarget_error};
+    let bvh = read_bvh(&a.bvh)?.scaled(CMU_UNIT_M);
+    let generator = generator_of(a.model.as_deref())?;
+    let n = bvh.n_frames();
+    let mut shape = panoman_human::params::ShapeParams::default();
+    if a.shape_frames > 0 && n > 1 {
+        let k = a.shape_frames.min(n);
+        let frames: Vec<usize> = (0..k).map(|j| j * (n - 1) / (k - 1).max(1)).collect();
+        shape = fit_cmu_shape(&generator, &shape, &bvh, &frames, 30)?.shape;
+    }
+    let identity = generator.identity(&shape)?;
+    let rt = CmuRetarget::calibrate(&identity, &shape, &bvh, 0)?;
+    let names = generator.bone_names();
+    let rig_idx: Vec<usize> = CMU_EVAL_JOINTS
+        .iter()
+        .map(|(_, b)| names.iter().position(|x| x == b))
+        .collect::<Option<_>>()
+        .context("rig bone of the evaluation joints")?;
+    let bvh_idx: Vec<usize> = CMU_EVAL_JOINTS
+        .iter()
+        .map(|(j, _)| bvh.joint_index(j))
+        .collect::<Option<_>>()
+        .with_context(|| format!("{}: not a CMU 31-joint skeleton", a.bvh.display()))?;
+    std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
+    let (mut rig, mut truth) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for f in 0..n {
+        let p = rt.params(&bvh, f);
+        let posed = identity.pose(&p.pose);
+        rig.push(rig_idx.iter().map(|&b| posed.bone_heads[b]).collect());
+        let bp = bvh.joint_positions(f);
+        truth.push(bvh_idx.iter().map(|&j| bp[j]).collect());
+        let path = a.out.join(format!("params_{f:05}.json"));
+        let text = serde_json::to_vec_pretty(&p.to_json(names))?;
+        write_bytes_atomically(&path, &text)?;
+    }
+    let e = retarget_error(&rig, &truth);
+    let summary = serde_json::json!({
+        "bvh": a.bvh.display().to_string(),
+        "frames": n,
+        "rig_scale": rt.scale,
+        "joint_error_mm": {
+            "mean": e.global_mean_mm,
+            "max": e.global_max_mm,
+            "per_frame_similarity_mean": e.per_frame_mean_mm,
+            "per_joint": CMU_EVAL_JOINTS.iter().zip(&e.per_joint_mm)
+                .map(|((j, _), m)| (j.to_string(), *m)).collect::<std::collections::BTreeMap<_, _>>(),
+            "method": "rig bone heads vs the BVH's forward kinematics, after one similarity for the clip",
+        },
+    });
+    write_bytes_atomically(
+        &a.out.join("summary.json"),
+        &serde_json::to_vec_pretty(&summary)?,
+    )?;
+    println!(
+        "{n} frames retargeted: joint error mean {:.1} mm (max {:.1}); wrote {}",
+        e.global_mean_mm,
+        e.global_max_mm,
+        a.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,913 @@
+//! MoSh-style solving of optical markers with PanoMan or the LBS rig (issue 13, part 2).
+//!
+//! * **Calibration** ([`MarkerSolver::calibrate`]): on `calibration_frames` frames spread
+//!   over the capture, alternating (a) a pose per frame — skeletal IK of the rig to the
+//!   markers as surface points (`solve_with_points`), the six phenotype values fitted per
+//!   frame in the first round and then held at their mean — and (b) a marker step: each
+//!   marker's surface point is moved to the mean, over the frames, of the closest surface
+//!   point to `observed − offset·n̂`, taken back to the rest mesh, shrunk toward its initial
+//!   location (one pseudo-observation) and kept within `marker_prior_m` of it; its offset
+//!   is the mean signed normal distance, shrunk toward the initial offset. PanoMan's α is
+//!   the shape-PCA projection of the calibrated rest mesh.
+//! * **Tracking** ([`MarkerSolver::track`]): every frame the markers are surface-point
+//!   targets `observed − offset·n̂` (n̂ the current normal at the marker's surface point),
+//!   missing ones skipped, down-weighted by Geman–McClure IRLS
+//!   (`w = (σ²/(σ² + r²))²`, σ = `robust_sigma_m`; a marker whose residual exceeds
+//!   `outlier_m` counts as an outlier). LBS: the IK, warm-started from the previous frame.
+//!   PanoMan: that IK as initializer, then the shell fit toward PanoMan's guidance pose with
+//!   the markers as handles (each marker pulls its triangle's three vertices, weighted by
+//!   the barycentric coordinates, so that the triangle's marker point lands on its target),
+//!   α fixed, the previous frame's fit as temporal term ([`panoman_fit::Previous`]).
+//! * **Held-out marker error** ([`MarkerSolver::held_out`]): k folds over the markers; each
+//!   fold is calibrated and tracked without its markers, on every `held_out_step`-th frame;
+//!   a left-out marker's error is the distance of its observation from its surface point +
+//!   offset **of the full calibration** (the one that saw it, as in MoSh) on the solved mesh.
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use panoman::Method;
+use panoman_fit::{Constraints, FitOptions, Placement, Previous, VertexHandle};
+use panoman_human::ik::{IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget};
+use panoman_human::params::{GeneratorParams, ShapeParams};
+use panoman_mesh::align::rigid_align;
+use panoman_mesh::geom::{V3, add, dot, matvec, norm, scale, sub};
+use panoman_model::model::Params;
+use serde::Serialize;
+
+use crate::error::{MocapError, Result};
+use crate::marker_map::{
+    MarkerMap, RestTemplate, closest_point, surface_normal, surface_point, vertex_normals,
+};
+use crate::markers::MarkerSequence;
+
+/// Controls of a solve.
+#[derive(Clone, Debug)]
+pub struct SolveOptions {
+    /// PanoMan or the LBS rig.
+    pub method: Method,
+    /// Frames of the calibration (spread over the capture). Default 12.
+    pub calibration_frames: usize,
+    /// Pose / marker-placement alternations. Default 4.
+    pub calibration_rounds: usize,
+    /// Largest move of a marker's surface point from its initial place (m). Default 0.06.
+    pub marker_prior_m: f64,
+    /// σ of the Geman–McClure weights (m). Default 0.03.
+    pub robust_sigma_m: f64,
+    /// Residual above which a marker counts as an outlier (m). Default 0.05.
+    pub outlier_m: f64,
+    /// IK iterations of a warm-started tracking frame. Default 8.
+    pub track_iterations: usize,
+    /// IRLS rounds (normals and weights updated) per tracking frame. Default 2.
+    pub track_rounds: usize,
+    /// λ_θ of the rig's pose prior (m², see `IkConfig::pose_prior`). Default 1e-6.
+    pub pose_prior: f64,
+    /// Folds of the held-out marker error (0: none). Default 5.
+    pub held_out_folds: usize,
+    /// Every this many frames of the solved range are tracked per fold. Default 10.
+    pub held_out_step: usize,
+}
+
+impl Default for SolveOptions {
+    fn default() -> Self {
+        SolveOptions {
+            method: Method::PanoMan,
+            calibration_frames: 12,
+            calibration_rounds: 4,
+            marker_prior_m: 0.06,
+            robust_sigma_m: 0.03,
+            outlier_m: 0.05,
+            track_iterations: 8,
+            track_rounds: 2,
+            pose_prior: 1e-6,
+            held_out_folds: 5,
+            held_out_step: 10,
+        }
+    }
+}
+
+/// The result of a calibration.
+#[derive(Clone, Debug)]
+pub struct Calibration {
+    /// The calibrated markers (the capture's order).
+    pub map: MarkerMap,
+    /// The six fitted phenotype values (IK order).
+    pub phenotype: [f64; 6],
+    /// Rest mesh of the calibrated shape (template topology).
+    pub rest: Vec<V3>,
+    /// PanoMan shape α (projection of `rest`).
+    pub alpha: Vec<f64>,
+    /// The calibration frames (indices into the sequence).
+    pub frames: Vec<usize>,
+    /// Mean marker residual over the calibration frames after the last round (mm).
+    pub mean_residual_mm: f64,
+    /// Mean move of the surface points from the initial map (mm).
+    pub mean_marker_shift_mm: f64,
+    /// Wall time (s).
+    pub seconds: f64,
+}
+
+/// One solved frame.
+#[derive(Clone, Debug)]
+pub struct SolvedFrame {
+    /// Frame index in the sequence.
+    pub frame: usize,
+    /// Solved vertices (template topology, metres).
+    pub vertices: Vec<V3>,
+    /// The rig's parameters of the IK.
+    pub rig_params: GeneratorParams,
+    /// PanoMan parameters (PanoMan only).
+    pub params: Option<Params>,
+    /// Per marker: distance of the observation from the model marker (m); NaN when missing
+    /// or not used.
+    pub residuals: Vec<f64>,
+    /// Markers counted as outliers.
+    pub outliers: usize,
+    /// Wall time (s).
+    pub seconds: f64,
+}
+
+/// Per-frame line of the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameReport {
+    /// Frame index in the file (first frame 0).
+    pub frame: usize,
+    /// Markers observed and used.
+    pub markers: usize,
+    /// Mean residual (mm).
+    pub mean_mm: f64,
+    /// Largest residual (mm).
+    pub max_mm: f64,
+    /// Outlier markers.
+    pub outliers: usize,
+    /// Wall time (ms).
+    pub ms: f64,
+}
+
+/// Held-out marker error.
+#[derive(Clone, Debug, Serialize)]
+pub struct HeldOut {
+    /// Mean over all held-out observations (mm).
+    pub mean: f64,
+    /// Mean per marker (mm).
+    pub per_marker: BTreeMap<String, f64>,
+    /// Mean over the held-out observations that the solve with every marker fits within
+    /// `outlier_m` (capture glitches left out; mm). `NaN` when no full solve was given.
+    pub mean_inliers: f64,
+    /// Held-out observations (all / inliers).
+    pub observations: [usize; 2],
+    /// How it was measured.
+    pub method: String,
+    /// Folds.
+    pub folds: usize,
+    /// Frames tracked per fold.
+    pub frames: usize,
+    /// Wall time (s).
+    pub seconds: f64,
+}
+
+/// `report.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct SolveReport {
+    /// The method.
+    pub method: Method,
+    /// The marker file.
+    pub capture: String,
+    /// The marker set of the map.
+    pub marker_set: String,
+    /// Markers of the capture.
+    pub n_markers: usize,
+    /// Frames solved.
+    pub n_frames: usize,
+    /// Per frame.
+    pub frames: Vec<FrameReport>,
+    /// Mean of all residuals (mm).
+    pub mean_residual_mm: f64,
+    /// Largest residual (mm).
+    pub max_residual_mm: f64,
+    /// Outlier marker-frames.
+    pub outliers: usize,
+    /// Mean residual per marker over the solved frames (mm).
+    pub per_marker_residual_mm: BTreeMap<String, f64>,
+    /// Calibration: frames, time (s), residual and marker shift (mm), phenotype.
+    pub calibration: serde_json::Value,
+    /// Times per stage (s; `tracking_warm_ms_per_frame` in ms).
+    pub times: BTreeMap<String, f64>,
+    /// Held-out marker error (when folds > 0).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub held_out_marker_error_mm: Option<HeldOut>,
+}
+
+/// Observed positions of one frame in the map's marker order (NaN = missing).
+type Obs<'a> = &'a [V3];
+
+fn finite(p: &V3) -> bool {
+    p.iter().all(|c| c.is_finite())
+}
+
+/// The solver of one model: the rig, its IK, PanoMan's shell fitter and the rest template.
+pub struct MarkerSolver {
+    model: panoman::Model,
+    rig: panoman_fit::Rig,
+    ik: IkSolver,
+    shell: panoman_fit::Fitter,
+    template: RestTemplate,
+    /// Options.
+    pub options: SolveOptions,
+}
+
+struct IkOut {
+    result: IkResult,
+    residuals: Vec<f64>,
+    weights: Vec<f64>,
+}
+
+impl MarkerSolver {
+    /// Builds the solver (the model must carry its LBS rig).
+    ///
+    /// # Errors
+    /// [`MocapError::Invalid`]: no embedded rig, solver setup failures.
+    pub fn new(model: &panoman::Model, options: SolveOptions) -> Result<MarkerSolver> {
+        let inv = |what: String| MocapError::Invalid { what };
+        let rig = panoman_fit::Rig::for_model(model.inner(), || {
+            Err(panoman_fit::FitError::Invalid(
+                "the model file has no embedded LBS rig (run `panoman embed-rig`)".into(),
+            ))
+        })
+        .map_err(|e| inv(e.to_string()))?;
+        let ik = rig.ik_solver().map_err(|e| inv(e.to_string()))?;
+        let shell = panoman_fit::Fitter::with_evaluator(model.evaluator())
+            .map_err(|e| inv(e.to_string()))?;
+        let template = RestTemplate::new(
+            &rig,
+            model.faces(),
+            model.topology_name(),
+            &ShapeParams::default(),
+        )?;
+        Ok(MarkerSolver {
+            model: model.clone(),
+            rig,
+            ik,
+            shell,
+            template,
+            options,
+        })
+    }
+
+    /// The rest template (default identity) the default maps are placed on.
+    pub fn template(&self) -> &RestTemplate {
+        &self.template
+    }
+
+    /// The rig's bone names.
+    pub fn bone_names(&self) -> &[String] {
+        self.rig.generator.bone_names()
+    }
+
+    fn faces(&self) -> &[[u32; 3]] {
+        &self.template.faces
+    }
+
+    /// Model marker positions (surface point + offset · normal) on a mesh.
+    pub fn model_markers(&self, map: &MarkerMap, x: &[V3]) -> Vec<V3> {
+        let n = vertex_normals(self.faces(), x, self.template.normal_sign);
+        map.markers
+            .iter()
+            .map(|m| {
+                let p = surface_point(self.faces(), x, m.triangle, m.barycentric);
+                let nn = surface_normal(self.faces(), &n, m.triangle, m.barycentric);
+                add(p, scale(nn, m.offset_m))
+            })
+            .collect()
+    }
+
+    /// A start for a frame without a previous one: the rest pose of `phenotype`, placed by
+    /// the rigid motion of the torso markers of `map` on the rest mesh onto the observed.
+    fn cold_state(&self, map: &MarkerMap, obs: Obs, active: &[bool], phen: [f64; 6]) -> IkState {
+        let mut st = IkState::rest(self.bone_names().len(), &ShapeParams::default());
+        st.phenotype = phen;
+        let rest_m = self.model_markers(map, &self.template.vertices);
+        let torso = |b: &str| {
+            [
+                "spine", "neck", "head", "shoulder", "clavicle", "pelvis", "root",
+            ]
+            .iter()
+            .any(|p| b.starts_with(p))
+        };
+        let pick = |torso_only: bool| -> (Vec<V3>, Vec<V3>) {
+            (0..map.markers.len())
+                .filter(|&i| active[i] && finite(&obs[i]))
+                .filter(|&i| !torso_only || torso(&map.markers[i].bone))
+                .map(|i| (rest_m[i], obs[i]))
+                .unzip()
+        };
+        let (mut a, mut b) = pick(true);
+        if a.len() < 3 {
+            (a, b) = pick(false);
+        }
+        if a.len() >= 3 {
+            let r = rigid_align(&a, &b, None);
+            let h0 = self.template.heads[0];
+            st.rotation = r.r;
+            st.translation = sub(add(r.t, matvec(&r.r, h0)), h0);
+        }
+        st
+    }
+
+    /// IK of one frame: `rounds` IRLS rounds from `warm` (whose mesh is `mesh`).
+    #[allow(clippy::too_many_arguments)]
+    fn ik_frame(
+        &self,
+        map: &MarkerMap,
+        obs: Obs,
+        active: &[bool],
+        warm: IkState,
+        mesh: &[V3],
+        fit_phenotype: bool,
+        rounds: usize,
+        iterations: usize,
+        sigma: f64,
+    ) -> Result<IkOut> {
+        let inv = |e: panoman_human::HumanError| MocapError::Invalid {
+            what: format!("marker IK: {e}"),
+        };
+        let nm = map.markers.len();
+        let mut weights: Vec<f64> = (0..nm)
+            .map(|i| f64::from(u8::from(active[i] && finite(&obs[i]))))
+            .collect();
+        let used = weights.iter().filter(|w| **w > 0.0).count();
+        if used < 3 {
+            return Err(MocapError::Invalid {
+                what: format!("only {used} markers observed (need 3)"),
+            });
+        }
+        let centroid = (0..nm)
+            .filter(|&i| weights[i] > 0.0)
+            .fold([0.0; 3], |a, i| add(a, scale(obs[i], 1.0 / used as f64)));
+        let mut kp = IkTargets::new();
+        // The solver needs one keypoint; this one has a negligible weight.
+        kp.set_named("body_center", centroid, 1e-12).map_err(inv)?;
+        let mut state = warm;
+        let mut cur = mesh.to_vec();
+        let mut last = None;
+        let mut residuals = vec![f64::NAN; nm];
+        for _ in 0..rounds.max(1) {
+            let normals = vertex_normals(self.faces(), &cur, self.template.normal_sign);
+            let points: Vec<PointTarget> = map
+                .markers
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| weights[*i] > 0.0)
+                .map(|(i, m)| {
+                    let f = self.faces()[m.triangle as usize];
+                    let n = surface_normal(self.faces(), &normals, m.triangle, m.barycentric);
+                    PointTarget {
+                        rows: (0..3).map(|k| (f[k], m.barycentric[k])).collect(),
+                        position: sub(obs[i], scale(n, m.offset_m)),
+                        weight: weights[i],
+                        normal: None,
+                    }
+                })
+                .collect();
+            let cfg = IkConfig {
+                fit_phenotype,
+                fit_face_units: Some(false),
+                max_iterations: iterations,
+                pose_prior: self.options.pose_prior,
+                initial_state: Some(state.clone()),
+                ..IkConfig::default()
+            };
+            let r = self.ik.solve_with_points(&kp, &points, &cfg).map_err(inv)?;
+            state = r.state.clone();
+            cur.clone_from(&r.posed);
+            residuals = self.residuals(map, obs, active, &cur);
+            for i in 0..nm {
+                if residuals[i].is_finite() {
+                    let s2 = sigma * sigma;
+                    let q = s2 / (s2 + residuals[i] * residuals[i]);
+                    weights[i] = q * q;
+                }
+            }
+            last = Some(r);
+        }
+        Ok(IkOut {
+            result: last.expect("one round"),
+            residuals,
+            weights,
+        })
+    }
+
+    /// Distances of the observations from the model markers on `x` (NaN: missing / unused).
+    fn residuals(&self, map: &MarkerMap, obs: Obs, active: &[bool], x: &[V3]) -> Vec<f64> {
+        let mm = self.model_markers(map, x);
+        (0..map.markers.len())
+            .map(|i| {
+                if active[i] && finite(&obs[i]) {
+                    norm(sub(mm[i], obs[i]))
+                } else {
+                    f64::NAN
+                }
+            })
+            .collect()
+    }
+
+    fn rest_mesh(&self, phen: [f64; 6]) -> Result<Vec<V3>> {
+        let mut st = IkState::rest(self.bone_names().len(), &ShapeParams::default());
+        st.phenotype = phen;
+        let shape = self.ik.shape_params(&st, &ShapeParams::default());
+        let t = RestTemplate::new(&self.rig, self.faces(), &self.template.topology, &shape)?;
+        Ok(t.vertices)
+    }
+
+    /// Calibrates shape and marker placement on frames of `seq` (see the module docs);
+    /// markers with `active[i] == false` are left out (their placement is kept).
+    ///
+    /// # Errors
+    /// Too few frames with markers; IK failures.
+    pub fn calibrate(
+        &self,
+        seq: &MarkerSequence,
+        frames: &[usize],
+        initial: &MarkerMap,
+        active: &[bool],
+    ) -> Result<Calibration> {
+        let t0 = Instant::now();
+        let o = &self.options;
+        let nm = initial.markers.len();
+        let calib = pick_frames(seq, frames, active, o.calibration_frames);
+        if calib.is_empty() {
+            return Err(MocapError::Invalid {
+                what: "no frame has 3 or more of the markers observed".into(),
+            });
+        }
+        let mut map = initial.clone();
+        let mut phen = [0.5; 6];
+        let mut states: Vec<(IkState, Vec<V3>)> = Vec::new();
+        for &f in &calib {
+            let st = self.cold_state(&map, seq.frame(f), active, phen);
+            let r = self.ik_frame(
+                &map,
+                seq.frame(f),
+                active,
+                st,
+                &self.template.vertices,
+                true,
+                3,
+                40,
+                0.15,
+            )?;
+            states.push((r.result.state.clone(), r.result.posed.clone()));
+        }
+        for (i, p) in phen.iter_mut().enumerate() {
+            *p = states.iter().map(|s| s.0.phenotype[i]).sum::<f64>() / states.len() as f64;
+        }
+        let rest = self.rest_mesh(phen)?;
+        let init_rest: Vec<V3> = initial
+            .markers
+            .iter()
+            .map(|m| surface_point(self.faces(), &rest, m.triangle, m.barycentric))
+            .collect();
+        let mut mean_res = f64::NAN;
+        for round in 0..o.calibration_rounds.max(1) {
+            // Wide weights first (the initial placement may be centimetres off), then the
+            // tracking σ.
+            let sigma = (0.1 / (1 << round) as f64).max(o.robust_sigma_m);
+            let mut outs = Vec::with_capacity(calib.len());
+            for (k, &f) in calib.iter().enumerate() {
+                let (mut st, mesh) = states[k].clone();
+                st.phenotype = phen;
+                let r =
+                    self.ik_frame(&map, seq.frame(f), active, st, &mesh, false, 2, 20, sigma)?;
+                states[k] = (r.result.state.clone(), r.result.posed.clone());
+                outs.push(r);
+            }
+            let obs: Vec<Obs> = calib.iter().map(|&f| seq.frame(f)).collect();
+            self.marker_step(&mut map, initial, &init_rest, &rest, &outs, &obs, active);
+            let all: Vec<f64> = outs
+                .iter()
+                .flat_map(|r| r.residuals.iter().copied().filter(|x| x.is_finite()))
+                .collect();
+            mean_res = 1e3 * all.iter().sum::<f64>() / all.len().max(1) as f64;
+        }
+        let shift: f64 = (0..nm)
+            .map(|i| {
+                let m = &map.markers[i];
+                norm(sub(
+                    surface_point(self.faces(), &rest, m.triangle, m.barycentric),
+                    init_rest[i],
+                ))
+            })
+            .sum::<f64>()
+            / nm.max(1) as f64;
+        let flat: Vec<f64> = rest.iter().flatten().copied().collect();
+        let alpha = self.model.inner().shape.project(&flat);
+        Ok(Calibration {
+            map,
+            phenotype: phen,
+            rest,
+            alpha,
+            frames: calib,
+            mean_residual_mm: mean_res,
+            mean_marker_shift_mm: 1e3 * shift,
+            seconds: t0.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// The marker-placement step of the calibration (see the module docs).
+    #[allow(clippy::too_many_arguments)]
+    fn marker_step(
+        &self,
+        map: &mut MarkerMap,
+        initial: &MarkerMap,
+        init_rest: &[V3],
+        rest: &[V3],
+        outs: &[IkOut],
+        obs: &[Obs],
+        active: &[bool],
+    ) {
+        let o = &self.options;
+        let faces = self.faces();
+        for (i, m) in map.markers.iter_mut().enumerate() {
+            if !active[i] {
+                continue;
+            }
+            let (mut acc, mut wsum, mut dsum) = ([0.0; 3], 0.0, 0.0);
+            for (r, ob) in outs.iter().zip(obs) {
+                let w = r.weights[i];
+                if !(w > 0.0 && finite(&ob[i])) {
+                    continue;
+                }
+                let x = &r.result.posed;
+                let normals = vertex_normals(faces, x, self.template.normal_sign);
+                let n = surface_normal(faces, &normals, m.triangle, m.barycentric);
+                let s = sub(ob[i], scale(n, m.offset_m));
+                let (t, b) = closest_point(faces, x, s, 0.08);
+                let q = surface_point(faces, x, t, b);
+                let nq = surface_normal(faces, &normals, t, b);
+                acc = add(acc, scale(surface_point(faces, rest, t, b), w));
+                dsum += w * dot(sub(ob[i], q), nq);
+                wsum += w;
+            }
+            if wsum <= 0.0 {
+                continue;
+            }
+            let lambda = 1.0;
+            let q0 = init_rest[i];
+            let mut q = scale(add(acc, scale(q0, lambda)), 1.0 / (wsum + lambda));
+            let d = sub(q, q0);
+            if norm(d) > o.marker_prior_m {
+                q = add(q0, scale(d, o.marker_prior_m / norm(d)));
+            }
+            let (t, b) = closest_point(faces, rest, q, 0.06);
+            m.triangle = t;
+            m.barycentric = b;
+            let off0 = initial.markers[i].offset_m;
+            m.offset_m = ((dsum + lambda * off0) / (wsum + lambda)).clamp(0.003, 0.06);
+        }
+    }
+}
+
+/// Up to `n` frames of `frames`, evenly spread, each with ≥ 3 active markers observed
+/// (preferring frames with ≥ 80 % of them).
+fn pick_frames(seq: &MarkerSequence, frames: &[usize], active: &[bool], n: usize) -> Vec<usize> {
+    let count = |f: usize| {
+        seq.frame(f)
+            .iter()
+            .zip(active)
+            .filter(|(p, a)| **a && finite(p))
+            .count()
+    };
+    let n_active = active.iter().filter(|a| **a).count();
+    for frac in [0.8, 0.0] {
+        let good: Vec<usize> = frames
+            .iter()
+            .copied()
+            .filter(|&f| {
+                let c = count(f);
+                c >= 3 && c as f64 >= frac * n_active as f64
+            })
+            .collect();
+        if good.len() >= n.min(frames.len()).max(1) || frac == 0.0 {
+            let k = n.min(good.len());
+            return (0..k)
+                .map(|j| good[(j * good.len() + good.len() / (2 * k.max(1))) / k.max(1)])
+                .collect();
+        }
+    }
+    Vec::new()
+}
+
+/// Handles of the markers for the shell fit: each marker pulls its triangle's vertices
+/// (weighted by the barycentric coordinates) so that the triangle, translated, puts its
+/// marker point on `target`.
+fn marker_handles(
+    faces: &[[u32; 3]],
+    map: &MarkerMap,
+    x: &[V3],
+    targets: &[Option<V3>],
+    weights: &[f64],
+) -> Vec<VertexHandle> {
+    let mut h = Vec::new();
+    for (i, m) in map.markers.iter().enumerate() {
+        let Some(t) = targets[i] else { continue };
+        let f = faces[m.triangle as usize];
+        let p = surface_point(faces, x, m.triangle, m.barycentric);
+        let shift = sub(t, p);
+        for k in 0..3 {
+            let w = weights[i] * m.barycentric[k];
+            if w > 1e-9 {
+                h.push(VertexHandle {
+                    vertex: f[k],
+                    position: add(x[f[k] as usize], shift),
+                    weight: w,
+                });
+            }
+        }
+    }
+    h
+}
+
+/// State carried from frame to frame.
+#[derive(Clone)]
+struct Carry {
+    state: IkState,
+    mesh: Vec<V3>,
+    previous: Option<Previous>,
+}
+
+impl MarkerSolver {
+    /// Tracks `frames` of `seq` in order with calibration `cal`; markers with
+    /// `active[i] == false` are not used.
+    ///
+    /// # Errors
+    /// IK or shell-fit failures (a frame with fewer than 3 markers keeps the previous
+    /// frame's solution).
+    pub fn track(
+        &mut self,
+        seq: &MarkerSequence,
+        frames: &[usize],
+        cal: &Calibration,
+        active: &[bool],
+    ) -> Result<Vec<SolvedFrame>> {
+        let mut out: Vec<SolvedFrame> = Vec::with_capacity(frames.len());
+        let mut carry: Option<Carry> = None;
+        for &f in frames {
+            let t = Instant::now();
+            let obs = seq.frame(f);
+            let n_obs = (0..obs.len())
+                .filter(|&i| active[i] && finite(&obs[i]))
+                .count();
+            if n_obs < 3
+                && let Some(prev) = out.last()
+            {
+                let mut s = prev.clone();
+                s.frame = f;
+                s.residuals = vec![f64::NAN; obs.len()];
+                s.outliers = 0;
+                s.seconds = t.elapsed().as_secs_f64();
+                out.push(s);
+                continue;
+            }
+            let (frame, next) = self.track_frame(obs, cal, active, carry.as_ref())?;
+            carry = Some(next);
+            out.push(SolvedFrame {
+                frame: f,
+                seconds: t.elapsed().as_secs_f64(),
+                ..frame
+            });
+        }
+        Ok(out)
+    }
+
+    fn track_frame(
+        &mut self,
+        obs: Obs,
+        cal: &Calibration,
+        active: &[bool],
+        carry: Option<&Carry>,
+    ) -> Result<(SolvedFrame, Carry)> {
+        let o = self.options.clone();
+        let map = &cal.map;
+        let ik = match carry {
+            Some(c) => self.ik_frame(
+                map,
+                obs,
+                active,
+                c.state.clone(),
+                &c.mesh,
+                false,
+                o.track_rounds,
+                o.track_iterations,
+                o.robust_sigma_m,
+            )?,
+            None => {
+                let st = self.cold_state(map, obs, active, cal.phenotype);
+                self.ik_frame(
+                    map,
+                    obs,
+                    active,
+                    st,
+                    &self.template.vertices,
+                    false,
+                    4,
+                    40,
+                    o.robust_sigma_m,
+                )?
+            }
+        };
+        let rig_params = ik.result.params.clone();
+        let state = ik.result.state.clone();
+        if o.method == Method::Lbs {
+            let residuals = ik.residuals.clone();
+            let outliers = count_outliers(&residuals, o.outlier_m);
+            let mesh = ik.result.posed.clone();
+            let frame = SolvedFrame {
+                frame: 0,
+                vertices: mesh.clone(),
+                rig_params,
+                params: None,
+                residuals,
+                outliers,
+                seconds: 0.0,
+            };
+            let next = Carry {
+                state,
+                mesh,
+                previous: None,
+            };
+            return Ok((frame, next));
+        }
+        let (vertices, params) = self.shell_frame(&ik, obs, cal, active, carry)?;
+        let residuals = self.residuals(map, obs, active, &vertices);
+        let outliers = count_outliers(&residuals, o.outlier_m);
+        let next = Carry {
+            state,
+            mesh: ik.result.posed.clone(),
+            previous: Some(Previous {
+                vertices: vertices.clone(),
+                params: params.clone(),
+                init: Some(ik.result.posed.clone()),
+            }),
+        };
+        let frame = SolvedFrame {
+            frame: 0,
+            vertices,
+            rig_params,
+            params: Some(params),
+            residuals,
+            outliers,
+            seconds: 0.0,
+        };
+        Ok((frame, next))
+    }
+
+    /// PanoMan's shell fit of one frame from its IK.
+    fn shell_frame(
+        &mut self,
+        ik: &IkOut,
+        obs: Obs,
+        cal: &Calibration,
+        active: &[bool],
+        carry: Option<&Carry>,
+    ) -> Result<(Vec<V3>, Params)> {
+        let faces = self.template.faces.clone();
+        let x = &ik.result.posed;
+        let normals = vertex_normals(&faces, x, self.template.normal_sign);
+        let targets: Vec<Option<V3>> = cal
+            .map
+            .markers
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                (active[i] && finite(&obs[i]) && ik.weights[i] > 0.0).then(|| {
+                    let n = surface_normal(&faces, &normals, m.triangle, m.barycentric);
+                    sub(obs[i], scale(n, m.offset_m))
+                })
+            })
+            .collect();
+        let handles = marker_handles(&faces, &cal.map, x, &targets, &ik.weights);
+        let previous = carry.and_then(|c| c.previous.clone());
+        let opts = if previous.is_some() {
+            FitOptions {
+                placement: Placement::Propagated,
+                step_iterations: 1,
+                ..FitOptions::default()
+            }
+        } else {
+            FitOptions::default()
+        };
+        let c = Constraints {
+            handles,
+            fixed: Some(Params {
+                alpha: cal.alpha.clone(),
+                ..Default::default()
+            }),
+            previous,
+            ..Default::default()
+        };
+        let init = panoman_fit::init_of(&ik.result, &self.ik, self.rig.generator.bone_names());
+        let fit = self
+            .shell
+            .fit(&c, &init, &opts)
+            .map_err(|e| MocapError::Invalid {
+                what: format!("shell fit: {e}"),
+            })?;
+        Ok((fit.vertices, fit.params))
+    }
+}
+
+fn count_outliers(r: &[f64], limit: f64) -> usize {
+    r.iter().filter(|x| x.is_finite() && **x > limit).count()
+}
+
+/// Mean and max (mm) of the finite entries.
+pub fn mean_max_mm(r: impl IntoIterator<Item = f64>) -> (f64, f64, usize) {
+    let (mut s, mut m, mut n) = (0.0, 0.0f64, 0usize);
+    for x in r.into_iter().filter(|x| x.is_finite()) {
+        s += x;
+        m = m.max(x);
+        n += 1;
+    }
+    if n == 0 {
+        (f64::NAN, f64::NAN, 0)
+    } else {
+        (1e3 * s / n as f64, 1e3 * m, n)
+    }
+}
+
+impl MarkerSolver {
+    /// The held-out marker error (see the module docs) on `frames` (every
+    /// `held_out_step`-th is used) with the full calibration `full`; `full_solve` (the
+    /// tracking with every marker) marks glitch observations for
+    /// [`HeldOut::mean_inliers`].
+    ///
+    /// # Errors
+    /// Calibration or tracking failures of a fold.
+    pub fn held_out(
+        &mut self,
+        seq: &MarkerSequence,
+        frames: &[usize],
+        full: &Calibration,
+        full_solve: Option<&[SolvedFrame]>,
+    ) -> Result<HeldOut> {
+        let full_res: BTreeMap<usize, &[f64]> = full_solve
+            .unwrap_or(&[])
+            .iter()
+            .map(|s| (s.frame, s.residuals.as_slice()))
+            .collect();
+        let mut inliers: Vec<f64> = Vec::new();
+        let t0 = Instant::now();
+        let k = self.options.held_out_folds.max(2);
+        let nm = full.map.markers.len();
+        let sub_frames: Vec<usize> = frames
+            .iter()
+            .copied()
+            .step_by(self.options.held_out_step.max(1))
+            .collect();
+        let mut per: Vec<Vec<f64>> = vec![Vec::new(); nm];
+        for fold in 0..k {
+            let active: Vec<bool> = (0..nm).map(|i| i % k != fold).collect();
+            let cal = self.calibrate(seq, frames, &full.map, &active)?;
+            let solved = self.track(seq, &sub_frames, &cal, &active)?;
+            for s in &solved {
+                let mm = self.model_markers(&full.map, &s.vertices);
+                let obs = seq.frame(s.frame);
+                for i in (0..nm).filter(|&i| !active[i] && finite(&obs[i])) {
+                    let e = norm(sub(mm[i], obs[i]));
+                    per[i].push(e);
+                    if full_res
+                        .get(&s.frame)
+                        .is_some_and(|r| r[i] <= self.options.outlier_m)
+                    {
+                        inliers.push(e);
+                    }
+                }
+            }
+        }
+        let all: Vec<f64> = per.iter().flatten().copied().collect();
+        let per_marker = full
+            .map
+            .markers
+            .iter()
+            .zip(&per)
+            .filter(|(_, v)| !v.is_empty())
+            .map(|(m, v)| (m.name.clone(), 1e3 * v.iter().sum::<f64>() / v.len() as f64))
+            .collect();
+        Ok(HeldOut {
+            mean: 1e3 * all.iter().sum::<f64>() / all.len().max(1) as f64,
+            per_marker,
+            mean_inliers: if full_solve.is_some() {
+                1e3 * inliers.iter().sum::<f64>() / inliers.len().max(1) as f64
+            } else {
+                f64::NAN
+            },
+            observations: [all.len(), inliers.len()],
+            method: format!(
+                "{k}-fold over markers (marker i in fold i mod {k}); each fold calibrated and tracked without its markers on every {}-th frame; error = |observed − (surface point + offset·n̂)| on the solved mesh, with the held-out marker's placement from the full calibration (MoSh)",
+                self.options.held_out_step.max(1)
+            ),
+            folds: k,
+            frames: sub_frames.len(),
+            seconds: t0.elapsed().as_secs_f64(),
+        })
+    }
+}

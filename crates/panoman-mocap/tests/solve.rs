@@ -1,0 +1,208 @@
+//! Marker solving on the committed 40-frame excerpts with the small model (both methods end
+//! to end), the shipped marker sets, and bad input.
+use std::path::{Path, PathBuf};
+
+use panoman::Method;
+use panoman_mocap::c3d::{C3dWriteOptions, write_c3d};
+use panoman_mocap::marker_map::{default_set_for, default_sets};
+use panoman_mocap::solve::{MarkerSolver, SolveOptions};
+use panoman_mocap::solve_run::{
+    SolveRequest, load_capture, parse_frames, solve_capture, write_solve,
+};
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+fn model() -> panoman::Model {
+    panoman::Model::load(panoman::training::small_model(None).expect("small model")).expect("loads")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("panoman-mocap-solve-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+fn request(markers: PathBuf, frames: &str, method: Method, folds: usize) -> SolveRequest {
+    SolveRequest {
+        markers,
+        vsk: None,
+        marker_map: None,
+        frames: parse_frames(frames).expect("frames"),
+        up: None,
+        options: SolveOptions {
+            method,
+            calibration_frames: 8,
+            held_out_folds: folds,
+            held_out_step: 8,
+            ..SolveOptions::default()
+        },
+    }
+}
+
+#[test]
+fn shipped_sets_place_every_marker_on_the_small_template() {
+    let m = model();
+    let solver = MarkerSolver::new(&m, SolveOptions::default()).expect("solver");
+    let sets = default_sets();
+    assert_eq!(sets.len(), 2);
+    assert_eq!(sets[0].markers.len(), 53);
+    assert_eq!(sets[1].markers.len(), 43);
+    for s in &sets {
+        let map = s.place(solver.template(), None, None).expect("placed");
+        assert_eq!(map.markers.len(), s.markers.len());
+        let rest = &solver.template().vertices;
+        let pts = solver.model_markers(&map, rest);
+        // Markers sit outside the surface by their offset: left markers on +X, right on −X.
+        for (pm, p) in map.markers.iter().zip(&pts) {
+            let b = pm.barycentric;
+            assert!((b[0] + b[1] + b[2] - 1.0).abs() < 1e-9 && b.iter().all(|x| *x >= -1e-9));
+            if pm.name.starts_with('L') && pm.name != "LFHD" && pm.name != "LBHD" {
+                assert!(p[0] > 0.0, "{} at {p:?}", pm.name);
+            }
+            if pm.name.starts_with('R') && !["RBAC", "RFHD", "RBHD"].contains(&pm.name.as_str()) {
+                assert!(p[0] < 0.0, "{} at {p:?}", pm.name);
+            }
+        }
+        let head = pts[map.markers.iter().position(|m| m.name == "LFHD").unwrap()];
+        let toe = pts[map.markers.iter().position(|m| m.name == "LTOE").unwrap()];
+        assert!(head[2] - toe[2] > 1.3, "head {head:?} toe {toe:?}");
+    }
+}
+
+#[test]
+fn lbs_solves_the_c3d_excerpt_with_held_out_error() {
+    let m = model();
+    let req = request(data("nick_freeform_001_head.c3d"), "0:40", Method::Lbs, 5);
+    let out = solve_capture(&m, &req).expect("solve");
+    let r = &out.report;
+    assert_eq!(r.n_frames, 40);
+    assert_eq!(r.marker_set, "cmu53");
+    assert!(r.mean_residual_mm < 12.0, "{}", r.mean_residual_mm);
+    let h = r.held_out_marker_error_mm.as_ref().expect("held out");
+    assert!(
+        h.mean.is_finite() && h.mean > r.mean_residual_mm && h.mean < 40.0,
+        "{}",
+        h.mean
+    );
+    assert!(h.per_marker.len() >= 50);
+    assert!(h.method.contains("5-fold"));
+    assert!(h.mean_inliers.is_finite() && h.observations[1] <= h.observations[0]);
+    let dir = tmp("lbs");
+    write_solve(&dir, &out, m.faces()).expect("written");
+    let rep: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+    for key in [
+        "frames",
+        "mean_residual_mm",
+        "outliers",
+        "times",
+        "calibration",
+        "per_marker_residual_mm",
+    ] {
+        assert!(rep.get(key).is_some(), "report.json lacks {key}");
+    }
+    assert!(rep["held_out_marker_error_mm"]["mean"].as_f64().unwrap() > 0.0);
+    assert_eq!(rep["method"], "lbs");
+    assert!(rep["times"]["calibration_s"].as_f64().unwrap() > 0.0);
+    assert!(dir.join("mesh_00039.obj").is_file() && dir.join("params_00039.json").is_file());
+    let map: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("marker_map.json")).unwrap()).unwrap();
+    assert_eq!(map["topology"], "small");
+    assert_eq!(map["markers"].as_array().unwrap().len(), 53);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn panoman_solves_the_csm_excerpt() {
+    let m = model();
+    let req = request(data("ThomasFechten_head.csm"), "0:40:2", Method::PanoMan, 3);
+    let out = solve_capture(&m, &req).expect("solve");
+    let r = &out.report;
+    assert_eq!(r.n_frames, 20);
+    assert_eq!(r.marker_set, "plugin_gait43");
+    assert!(out.frames.iter().all(|f| f.params.is_some()));
+    // RANK is mislabelled in these frames (≈ 0.2 m off): it is the outlier.
+    assert!(r.outliers >= 20, "{}", r.outliers);
+    assert!(r.per_marker_residual_mm["RANK"] > 100.0);
+    let others: Vec<f64> = r
+        .per_marker_residual_mm
+        .iter()
+        .filter(|(k, _)| k.as_str() != "RANK")
+        .map(|(_, v)| *v)
+        .collect();
+    let mean = others.iter().sum::<f64>() / others.len() as f64;
+    assert!(mean < 12.0, "{mean}");
+    let h = r.held_out_marker_error_mm.as_ref().expect("held out");
+    assert!(h.mean.is_finite() && h.folds == 3);
+}
+
+#[test]
+fn unknown_marker_names_are_listed() {
+    let names: Vec<String> = ["LFHD", "RFHD", "FOO1", "BAR2"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let e = default_set_for(&names).unwrap_err().to_string();
+    assert!(
+        e.contains("FOO1") && e.contains("BAR2") && !e.contains("LFHD,"),
+        "{e}"
+    );
+    // The same through the solve of a file.
+    let mut seq = load_capture(&data("nick_freeform_001_head.c3d"), None).unwrap();
+    seq.names[3] = "XYZW".into();
+    let dir = tmp("unknown");
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("renamed.c3d");
+    std::fs::write(&p, write_c3d(&seq, &C3dWriteOptions::default()).unwrap()).unwrap();
+    let e = solve_capture(&model(), &request(p, "0:4", Method::Lbs, 0))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("XYZW") && e.contains("--marker-map"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn nan_frames_are_missing_markers() {
+    let mut seq = load_capture(&data("nick_freeform_001_head.c3d"), None).unwrap();
+    let nm = seq.n_markers();
+    for f in 4..7 {
+        for i in 0..nm {
+            seq.positions[f * nm + i] = [f64::NAN; 3];
+        }
+    }
+    for f in 0..12 {
+        seq.positions[f * nm + (f % nm)] = [f64::NAN; 3];
+    }
+    let dir = tmp("nan");
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("gaps.c3d");
+    std::fs::write(&p, write_c3d(&seq, &C3dWriteOptions::default()).unwrap()).unwrap();
+    let out = solve_capture(&model(), &request(p, "0:12", Method::Lbs, 0)).expect("solve");
+    assert_eq!(out.frames.len(), 12);
+    for f in 4..7 {
+        assert_eq!(out.report.frames[f].markers, 0);
+        assert!(out.report.frames[f].mean_mm.is_nan());
+    }
+    assert!(out.report.frames[8].markers >= nm - 3);
+    assert!(out.report.mean_residual_mm < 15.0);
+    assert!(
+        out.frames
+            .iter()
+            .all(|s| s.vertices.iter().flatten().all(|c| c.is_finite()))
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn frame_ranges_parse() {
+    assert_eq!(parse_frames("0:400:2").unwrap(), (0, Some(400), 2));
+    assert_eq!(parse_frames("10:").unwrap(), (10, None, 1));
+    assert_eq!(parse_frames("7").unwrap(), (7, Some(8), 1));
+    assert!(parse_frames("5:3").is_err());
+    assert!(parse_frames("0:10:0").is_err());
+    assert!(parse_frames("a:b").is_err());
+}
