@@ -26,8 +26,8 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use panoman::Method;
+use panoman_fit::ik::{IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget};
 use panoman_fit::{Constraints, FitOptions, Placement, Previous, VertexHandle};
-use panoman_human::ik::{IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget};
 use panoman_human::params::{GeneratorParams, ShapeParams};
 use panoman_mesh::align::rigid_align;
 use panoman_mesh::geom::{V3, add, dot, matvec, norm, scale, sub};
@@ -327,7 +327,7 @@ impl MarkerSolver {
         iterations: usize,
         sigma: f64,
     ) -> Result<IkOut> {
-        let inv = |e: panoman_human::HumanError| MocapError::Invalid {
+        let inv = |e: panoman_fit::FitError| MocapError::Invalid {
             what: format!("marker IK: {e}"),
         };
         let nm = map.markers.len();
