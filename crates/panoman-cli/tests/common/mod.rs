@@ -37,18 +37,19 @@ pub fn one_line_error(o: &Output, needle: &str) {
     assert!(!err.contains("panicked"), "{err}");
 }
 
-/// A temporary directory removed when dropped. Test binaries keep some of these in statics
-/// (shared trained models), which Rust never drops: [`TempDir::new`] therefore also removes the
-/// `<tmp>/panoman-*-<pid>` folders of earlier test processes that no longer run (Linux:
-/// no `/proc/<pid>`), so at most the folders of the running processes exist.
+/// A temporary directory `<tmp>/panoman-test-<tag>-<pid>`, removed when dropped. Test binaries
+/// keep some of these in statics (shared trained models), which Rust never drops:
+/// [`TempDir::new`] therefore also removes the `<tmp>/panoman-test-*-<pid>` folders of earlier
+/// test processes that no longer run (Linux: no `/proc/<pid>`), so at most the folders of the
+/// running processes exist.
 #[derive(Debug)]
 pub struct TempDir(PathBuf);
 
 impl TempDir {
-    /// A fresh, empty `<tmp>/panoman-<tag>-<pid>`.
+    /// A fresh, empty `<tmp>/panoman-test-<tag>-<pid>`.
     pub fn new(tag: &str) -> TempDir {
         remove_stale_test_dirs();
-        let d = std::env::temp_dir().join(format!("panoman-{tag}-{}", std::process::id()));
+        let d = std::env::temp_dir().join(format!("panoman-test-{tag}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(&d).unwrap();
         TempDir(d)
@@ -79,7 +80,7 @@ impl Drop for TempDir {
     }
 }
 
-/// Removes `<tmp>/panoman-…-<pid>` directories whose process `<pid>` no longer runs (Linux only;
+/// Removes `<tmp>/panoman-test-…-<pid>` directories (made by [`TempDir`]) whose process `<pid>` no longer runs (Linux only;
 /// elsewhere nothing is removed).
 pub fn remove_stale_test_dirs() {
     if !Path::new("/proc/self").exists() {
@@ -90,7 +91,7 @@ pub fn remove_stale_test_dirs() {
     };
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        let Some(rest) = name.strip_prefix("panoman-") else {
+        let Some(rest) = name.strip_prefix("panoman-test-") else {
             continue;
         };
         let Some(pid) = rest.rsplit('-').next().and_then(|p| p.parse::<u32>().ok()) else {
@@ -105,7 +106,7 @@ pub fn remove_stale_test_dirs() {
     }
 }
 
-/// A fresh temp directory `<tmp>/panoman-<tag>-<pid>` (removed when the returned guard drops)
+/// A fresh temp directory `<tmp>/panoman-test-<tag>-<pid>` (removed when the returned guard drops)
 /// holding a small dataset (`H`, seed `seed`) and a small model trained on it
 /// (`M.safetensors`), made through the CLI. Returns (directory, dataset, model).
 pub fn small_model(tag: &str, seed: u64) -> (TempDir, PathBuf, PathBuf) {
