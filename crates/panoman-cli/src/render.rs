@@ -162,10 +162,33 @@ impl RgbImage {
     /// # Errors
     /// `<path>: <what>` for encoding or I/O failures.
     pub fn save_png(&self, path: &Path) -> Result<()> {
+        check_png_path(path)?;
         let bytes = self
             .encode_png()
             .with_context(|| format!("{}: PNG encoding failed", path.display()))?;
         crate::util::write_atomic(path, &bytes)
+    }
+}
+
+/// Images are written as PNG only: an output path must end in `.png` (case-insensitive), so
+/// that no PNG bytes land under a `.jpg` (or other) name.
+///
+/// # Errors
+/// One line naming the path.
+pub fn check_png_path(path: &Path) -> Result<()> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase());
+    match ext.as_deref() {
+        Some("png") => Ok(()),
+        Some(other) => anyhow::bail!(
+            "{}: unsupported image extension '.{other}': images are written as PNG (.png)",
+            path.display()
+        ),
+        None => anyhow::bail!(
+            "{}: image path has no extension: images are written as PNG (.png)",
+            path.display()
+        ),
     }
 }
 

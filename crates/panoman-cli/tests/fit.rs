@@ -15,8 +15,8 @@ mod common;
 use common::{ok, one_line_error, panoman, small_model};
 
 /// A small dataset and a model trained on it (shared by the tests of this file).
-fn trained() -> &'static (PathBuf, PathBuf, PathBuf) {
-    static CELL: OnceLock<(PathBuf, PathBuf, PathBuf)> = OnceLock::new();
+fn trained() -> &'static (common::TempDir, PathBuf, PathBuf) {
+    static CELL: OnceLock<(common::TempDir, PathBuf, PathBuf)> = OnceLock::new();
     CELL.get_or_init(|| small_model("fit-test", 5))
 }
 

@@ -22,11 +22,9 @@ fn fixtures() -> PathBuf {
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures"))
 }
 
-fn tmpdir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("panoman-foundation-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh `<tmp>/panoman-test-foundation-<tag>-<pid>`, removed when the guard drops.
+fn tmpdir(tag: &str) -> common::TempDir {
+    common::TempDir::new(&format!("foundation-{tag}"))
 }
 
 fn template() -> Template {

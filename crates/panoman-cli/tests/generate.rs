@@ -7,6 +7,8 @@ use panoman_mesh::io;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+mod common;
+
 const TOL: f64 = 1e-9;
 const CASES: [&str; 3] = ["default", "seed000", "seed001"];
 
@@ -18,11 +20,9 @@ fn oracle(name: &str) -> PathBuf {
     fixtures.join("anny-oracle").join(name)
 }
 
-fn tmpdir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("panoman-generate-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh `<tmp>/panoman-test-generate-<tag>-<pid>`, removed when the guard drops.
+fn tmpdir(tag: &str) -> common::TempDir {
+    common::TempDir::new(&format!("generate-{tag}"))
 }
 
 /// Runs the binary; assets are fetched once into the default directory first (the child

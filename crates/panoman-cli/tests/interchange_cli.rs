@@ -5,16 +5,10 @@
 mod common;
 
 use common::{ok, one_line_error, panoman};
-use std::path::PathBuf;
 
-fn dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "panoman-interchange-cli-{tag}-{}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh `<tmp>/panoman-test-interchange-cli-<tag>-<pid>`, removed when the guard drops.
+fn dir(tag: &str) -> common::TempDir {
+    common::TempDir::new(&format!("interchange-cli-{tag}"))
 }
 
 fn is_glb(p: &std::path::Path) -> bool {

@@ -5,16 +5,14 @@
 use panoman_human::keypoints::{KeypointsFile, N_KEYPOINTS, keypoint_index, load_or_build};
 use panoman_human::template::{full_template, small_template};
 use panoman_mesh::io;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 mod common;
 use common::panoman;
 
-fn tmpdir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("panoman-kp-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh `<tmp>/panoman-test-kp-<tag>-<pid>`, removed when the guard drops.
+fn tmpdir(tag: &str) -> common::TempDir {
+    common::TempDir::new(&format!("kp-{tag}"))
 }
 
 fn s(p: &Path) -> &str {

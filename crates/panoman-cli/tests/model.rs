@@ -10,12 +10,10 @@ mod common;
 use common::{ok, one_line_error, panoman, small_model, train_small};
 
 /// A small dataset and a model trained on it, shared by the tests of this file.
-fn trained() -> &'static (PathBuf, PathBuf) {
-    static CELL: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
-    CELL.get_or_init(|| {
-        let (_, data, model) = small_model("model-test", 3);
-        (data, model)
-    })
+fn trained() -> (&'static PathBuf, &'static PathBuf) {
+    static CELL: OnceLock<(common::TempDir, PathBuf, PathBuf)> = OnceLock::new();
+    let (_, data, model) = CELL.get_or_init(|| small_model("model-test", 3));
+    (data, model)
 }
 
 fn held_out_row(data: &Path) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, u8) {

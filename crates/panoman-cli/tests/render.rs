@@ -11,11 +11,9 @@ use common::panoman;
 
 const BACKGROUND: [u8; 3] = [236, 236, 236];
 
-fn tmpdir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("panoman-render-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh `<tmp>/panoman-test-render-<tag>-<pid>`, removed when the guard drops.
+fn tmpdir(tag: &str) -> common::TempDir {
+    common::TempDir::new(&format!("render-{tag}"))
 }
 
 fn s(p: &Path) -> &str {

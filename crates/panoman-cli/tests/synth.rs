@@ -9,15 +9,15 @@ use panoman_human::params::ShapeParams;
 use panoman_human::sampling::{FACE_SLOT, LEFT_HAND_SLOT, N_POSABLE, posable_bones};
 use panoman_human::template::{full_template, small_template};
 use panoman_mesh::Topology;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::sync::OnceLock;
 
-fn tmpdir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("panoman-synth-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+mod common;
+
+/// A fresh `<tmp>/panoman-test-synth-<tag>-<pid>`, removed when the guard drops.
+fn tmpdir(tag: &str) -> common::TempDir {
+    common::TempDir::new(&format!("synth-{tag}"))
 }
 
 fn synth(out: &Path, threads: &str, extra: &[&str]) -> std::process::Output {
@@ -42,7 +42,7 @@ fn bytes(dir: &Path, name: &str) -> Vec<u8> {
 
 /// The small preset at seed 5, written once for the tests that only read it.
 fn small_dataset() -> &'static Path {
-    static D: OnceLock<PathBuf> = OnceLock::new();
+    static D: OnceLock<common::TempDir> = OnceLock::new();
     D.get_or_init(|| {
         let d = tmpdir("shared");
         synth(&d, "2", &["--seed", "5"]);

@@ -33,7 +33,8 @@
 //! units, the tensor shapes and each identity's morphological age. It holds no timestamps, so
 //! equal inputs give equal bytes.
 //!
-//! Both files are written atomically (temporary file in the directory, then rename); vertex
+//! Both files are written atomically (temporary file `.<name>.tmp-<pid>` in the directory, then
+//! rename; such files left by a killed run, whose process is gone, are removed first); vertex
 //! rows are computed in blocks of identities in parallel (rayon) and streamed to disk in row
 //! order, so memory stays at one block of rows.
 
@@ -358,6 +359,9 @@ pub fn synthesize(
     let header = safetensors_header(&specs, &hash);
 
     let path = out_dir.join(TENSORS_FILE);
+    // A killed earlier run may have left its (large) temporary file: remove those of dead
+    // processes before writing a new one.
+    panoman_mesh::io::remove_stale_temp_files(&path);
     let tmp = temp_path(&path);
     let result = (|| -> Result<u64> {
         let file = File::create(&tmp).map_err(|e| HumanError::io(&tmp, e))?;
@@ -588,6 +592,7 @@ fn temp_path(path: &Path) -> PathBuf {
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    panoman_mesh::io::remove_stale_temp_files(path);
     let tmp = temp_path(path);
     std::fs::write(&tmp, bytes).map_err(|e| HumanError::io(path, e))?;
     std::fs::rename(&tmp, path).map_err(|e| {

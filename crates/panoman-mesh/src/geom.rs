@@ -2,6 +2,17 @@
 
 /// 3-vector.
 pub type V3 = [f64; 3];
+
+/// The largest coordinate magnitude (metres) panoman accepts in fitting targets (keypoints,
+/// handles, point clouds) and in meshes to render: 10 km. Anything beyond is almost surely
+/// wrong data or wrong units (huge values also overflow the squared distances of the solvers).
+pub const MAX_COORDINATE: f64 = 1e4;
+
+/// Whether every coordinate of `p` is finite and at most [`MAX_COORDINATE`] in magnitude.
+#[inline]
+pub fn is_in_bounds(p: V3) -> bool {
+    p.iter().all(|c| c.abs() <= MAX_COORDINATE)
+}
 /// 3×3 matrix, row-major: `m[r][c]`.
 pub type M3 = [[f64; 3]; 3];
 

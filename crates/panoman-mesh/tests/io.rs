@@ -854,3 +854,202 @@ fn timing_13k_vertex_mesh() {
     assert_bit_exact(&mesh, &read_obj(&p_obj).unwrap(), "timing obj");
     assert_bit_exact(&mesh, &read_ply(&p_ply).unwrap(), "timing ply");
 }
+
+#[test]
+fn obj_cut_inside_the_face_list_is_an_error() {
+    let quads = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\n\
+                 f 1 2 3 4\nf 1 2 6 5\n";
+    // A complete file (with or without the final newline) reads.
+    assert_eq!(obj(quads).unwrap().faces.len(), 4);
+    assert_eq!(obj(quads.trim_end()).unwrap().faces.len(), 4);
+    // A quad mesh whose last line was cut after three corners.
+    let cut = format!("{quads}f 2 3 6");
+    assert_format_error(
+        obj(&cut),
+        "test_input.obj",
+        &["line 9", "incomplete last line", "truncated"],
+    );
+    // The same face with a newline is a complete (mixed) record and reads.
+    assert_eq!(obj(&format!("{cut}\n")).unwrap().faces.len(), 5);
+    // A corner cut mid-token: `4/3/1` → `4/3` (form differs) and `4/` (malformed anywhere).
+    let tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvn 0 0 1\n\
+               f 1/1/1 2/2/1 3/3/1\n";
+    assert_format_error(
+        obj(&format!("{tri}f 2/2/1 4/3/1 3/3")),
+        "test_input.obj",
+        &["line 10", "incomplete last line"],
+    );
+    for bad in ["3/", "3/3/", "3//", "3/x", "3/1/1/1"] {
+        assert_format_error(
+            obj(&format!("{tri}f 2/2/1 4/3/1 {bad}\n")),
+            "test_input.obj",
+            &["line 10", &format!("malformed vertex index '{bad}'")],
+        );
+    }
+    // A complete unterminated triangle reads.
+    assert_eq!(
+        obj(&format!("{tri}f 2/2/1 4/3/1 3/3/1"))
+            .unwrap()
+            .faces
+            .len(),
+        2
+    );
+    // A vertex line cut before its colour columns (then faces cannot follow: still an error).
+    assert!(obj("v 0 0 0 1 1 1\nv 1 0 0 1 1 1\nv 0 1 0 1").is_err());
+}
+
+#[test]
+fn obj_written_by_panoman_cut_at_a_line_boundary_is_an_error() {
+    let mesh = uv_sphere(6, 8, 1.0);
+    let dir = TempDir::new("obj_cut_lines");
+    let p = dir.path("s.obj");
+    write_obj(&p, &mesh).unwrap();
+    let text = std::fs::read_to_string(&p).unwrap();
+    assert_eq!(obj(&text).unwrap(), mesh);
+    // Drop the last k face lines (each cut ends with a newline: a complete-looking file).
+    let lines: Vec<&str> = text.lines().collect();
+    for k in 1..5 {
+        let cut = lines[..lines.len() - k].join("\n") + "\n";
+        assert_format_error(
+            obj(&cut),
+            "test_input.obj",
+            &["header comment declares", "truncated"],
+        );
+    }
+    // Every prefix of a panoman file that ends inside the face list is an error (panoman's files
+    // end with a newline).
+    let first_f = text.find("\nf ").unwrap();
+    for k in first_f + 1..text.len() {
+        assert!(obj(&text[..k]).is_err(), "cut at {k} parsed");
+    }
+}
+
+#[test]
+fn ply_with_more_data_than_the_header_declares_is_an_error() {
+    let mesh = uv_sphere(6, 8, 1.0);
+    let nf = mesh.faces.len();
+    let nv = mesh.positions.len();
+    let dir = TempDir::new("ply_extra");
+    let p = dir.path("s.ply");
+    for format in [PlyFormat::BinaryLittleEndian, PlyFormat::Ascii] {
+        write_ply(&p, &mesh, format).unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        assert_eq!(ply(&bytes).unwrap(), mesh);
+        let text = String::from_utf8_lossy(&bytes).into_owned();
+        let end = text.find("end_header\n").unwrap();
+        let (header, _) = bytes.split_at(end);
+        let header = String::from_utf8_lossy(header).into_owned();
+        for (from, to) in [
+            (
+                format!("element face {nf}\n"),
+                format!("element face {}\n", nf - 3),
+            ),
+            (
+                format!("element vertex {nv}\n"),
+                format!("element vertex {}\n", nv - 1),
+            ),
+        ] {
+            let mut lying = header.replace(&from, &to).into_bytes();
+            lying.extend_from_slice(&bytes[end..]);
+            let e = ply(&lying).unwrap_err().to_string();
+            assert!(
+                e.starts_with("test_input.ply: ") && !e.contains('\n'),
+                "{e}"
+            );
+            if from.contains("face") {
+                assert!(
+                    e.contains("after the last declared element"),
+                    "{format:?}: {e}"
+                );
+            }
+        }
+        // Ascii files may end with blank lines.
+        if format == PlyFormat::Ascii {
+            let mut padded = bytes.clone();
+            padded.extend_from_slice(b"\n\n");
+            assert_eq!(ply(&padded).unwrap(), mesh);
+        }
+    }
+    // The points reader checks the same.
+    write_ply(&p, &mesh, PlyFormat::BinaryLittleEndian).unwrap();
+    let mut bytes = std::fs::read(&p).unwrap();
+    bytes.extend_from_slice(&[0u8; 24]);
+    assert_format_error(
+        parse_ply_points(&bytes, Path::new("pts.ply")),
+        "pts.ply",
+        &["24 bytes of data after the last declared element"],
+    );
+}
+
+#[test]
+fn writing_into_a_missing_directory_names_the_directory() {
+    let dir = TempDir::new("missing_out");
+    let m = TriMesh::new(
+        vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        vec![[0, 1, 2]],
+    );
+    let missing = dir.path("nope");
+    let target = missing.join("x.obj");
+    let e = write_mesh(&target, &m).unwrap_err().to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: output directory {} does not exist",
+            target.display(),
+            missing.display()
+        )
+    );
+    let e = panoman_mesh::io::write_bytes_atomically(&target, b"x")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("output directory") && e.contains("does not exist"),
+        "{e}"
+    );
+    // Up-front check: missing directory, a file as directory; a writable one passes and
+    // leaves nothing behind.
+    let e = panoman_mesh::io::check_output_path(&target)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("does not exist"), "{e}");
+    std::fs::write(dir.path("file"), b"x").unwrap();
+    let e = panoman_mesh::io::check_output_path(&dir.path("file").join("y.obj"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("is not a directory"), "{e}");
+    panoman_mesh::io::check_output_path(&dir.path("ok.obj")).unwrap();
+    assert_eq!(dir.entries(), vec!["file".to_string()]);
+}
+
+#[test]
+fn stale_temp_files_of_dead_processes_are_removed_before_writing() {
+    let dir = TempDir::new("stale");
+    let m = TriMesh::new(
+        vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        vec![[0, 1, 2]],
+    );
+    // 999999999 is above any Linux pid_max (2^22): never a live process.
+    let own = std::process::id();
+    for name in [
+        ".x.obj.tmp-999999999-3".to_string(),
+        ".x.obj.tmp-999999999".to_string(),
+        format!(".x.obj.tmp-{own}-987654"),
+        ".y.obj.tmp-999999999-0".to_string(),
+        ".x.obj.tmp-notapid".to_string(),
+    ] {
+        std::fs::write(dir.path(&name), b"partial").unwrap();
+    }
+    write_mesh(&dir.path("x.obj"), &m).unwrap();
+    let mut want = vec![
+        format!(".x.obj.tmp-{own}-987654"),
+        ".x.obj.tmp-notapid".to_string(),
+        ".y.obj.tmp-999999999-0".to_string(),
+        "x.obj".to_string(),
+    ];
+    if !cfg!(target_os = "linux") {
+        want.push(".x.obj.tmp-999999999-3".into());
+        want.push(".x.obj.tmp-999999999".into());
+    }
+    want.sort();
+    assert_eq!(dir.entries(), want);
+}

@@ -588,7 +588,17 @@ impl PanoManModel {
     /// Loads and validates a model file: format tag and version, tensor presence, shapes,
     /// dtypes, index ranges, finiteness and the topology hash of the stored faces. Errors
     /// name the file and what is wrong.
+    ///
+    /// A dataset written by `panoman synth` (`dataset.safetensors`, whose metadata say
+    /// `format: panoman-dataset`) is recognized from its header alone and named as such.
     pub fn load(path: &Path) -> Result<PanoManModel> {
+        if is_dataset_file(path) {
+            return Err(ModelError::Format {
+                path: path.to_path_buf(),
+                what: "this is a dataset (safetensors written by panoman synth), not a model file"
+                    .into(),
+            });
+        }
         let store = TensorStore::load(path)?;
         Self::from_store(&store).map_err(|e| match e {
             ModelError::Invalid(what) | ModelError::Numerical(what) => ModelError::Format {
@@ -1102,4 +1112,33 @@ fn axis_angle_or_identity(r: [f64; 3]) -> panoman_mesh::geom::M3 {
     } else {
         axis_angle(r, a)
     }
+}
+
+/// Whether `path` is a safetensors file whose metadata mark it as a panoman dataset
+/// (`"format": "panoman-dataset"`, see `panoman_human::dataset`). Reads the header only (at
+/// most 1 MiB); any read or parse failure is `false` (the model loader then reports it).
+fn is_dataset_file(path: &Path) -> bool {
+    use std::io::Read;
+    let Ok(mut f) = std::fs::File::open(path) else {
+        return false;
+    };
+    let mut len = [0u8; 8];
+    if f.read_exact(&mut len).is_err() {
+        return false;
+    }
+    let len = u64::from_le_bytes(len);
+    if len > 1 << 20 {
+        return false;
+    }
+    let mut header = vec![0u8; len as usize];
+    if f.read_exact(&mut header).is_err() {
+        return false;
+    }
+    let Ok(v) = serde_json::from_slice::<serde_json::Value>(&header) else {
+        return false;
+    };
+    v.get("__metadata__")
+        .and_then(|m| m.get("format"))
+        .and_then(serde_json::Value::as_str)
+        == Some(panoman_human::dataset::FORMAT)
 }

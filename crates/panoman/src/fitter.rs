@@ -260,6 +260,7 @@ impl Fitter {
 
     pub(crate) fn constraints(&self, t: &Targets, req: &FitRequest) -> Result<Constraints> {
         req.check()?;
+        t.check()?;
         if req.motion.is_some() && self.model.inner().motion.is_none() {
             return Err(Error::Invalid(
                 "motion data given, but the model has no motion MLP".into(),

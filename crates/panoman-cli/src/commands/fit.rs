@@ -195,7 +195,11 @@ pub fn run(a: FitArgs) -> Result<()> {
         targets.handles = read_handles(h, model.n_vertices())?;
     }
     if let Some(p) = &a.points {
-        targets.points = Some(read_points(p)?);
+        let cloud = read_points(p)?;
+        cloud
+            .check_against(&targets.keypoints)
+            .map_err(|e| e.in_file(p))?;
+        targets.points = Some(cloud);
     }
     let mut fitter = Fitter::with_assets(&model, a.assets.as_deref())?;
     let req = request(&a, &fitter, &model)?;

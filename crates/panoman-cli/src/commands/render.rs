@@ -3,6 +3,7 @@
 use crate::render::{PALETTE, Rgb, Scene, View};
 use anyhow::{Result, anyhow, bail};
 use clap::Args;
+use panoman_mesh::geom::{MAX_COORDINATE, is_in_bounds};
 use panoman_mesh::io;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -105,7 +106,7 @@ fn read_keypoints(path: &Path) -> Result<Vec<(Group, [f64; 3])>> {
             .filter(|a| a.len() == 3)
             .map(|a| a.iter().filter_map(|x| x.as_f64()).collect())
             .unwrap_or_default();
-        if p.len() != 3 || !p.iter().all(|x| x.is_finite()) {
+        if p.len() != 3 || !is_in_bounds([p[0], p[1], p[2]]) {
             return Err(err(format!(
                 "keypoint `{name}` must be [x, y, z] with finite numbers, found {v}"
             )));
@@ -131,6 +132,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
             a.out.display()
         );
     }
+    crate::render::check_png_path(&a.out)?;
     let meshes = a
         .meshes
         .iter()
@@ -138,6 +140,14 @@ pub fn run(a: RenderArgs) -> Result<()> {
             let m = io::read_mesh(p)?;
             m.check_basic()
                 .map_err(|e| anyhow!("{}: {e}", p.display()))?;
+            if let Some(i) = m.positions.iter().position(|q| !is_in_bounds(*q)) {
+                bail!(
+                    "{}: vertex {i} at {:?} is out of bounds (|coordinate| > {MAX_COORDINATE} m; \
+                     meshes are in metres): nothing sensible to render",
+                    p.display(),
+                    m.positions[i]
+                );
+            }
             Ok(m)
         })
         .collect::<Result<Vec<_>>>()?;

@@ -41,6 +41,9 @@ pub struct TrainArgs {
 /// Runs `panoman train`.
 pub fn run(a: TrainArgs) -> Result<()> {
     let t0 = Instant::now();
+    // The model, its report and figures go next to --out: check the location before training
+    // (minutes), not after.
+    panoman_mesh::io::check_output_path(&a.out)?;
     let mut cfg = TrainConfig::preset(&a.preset)?;
     cfg.seed = a.seed;
     if let Some(c) = &a.components {

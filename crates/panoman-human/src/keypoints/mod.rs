@@ -423,8 +423,9 @@ impl KeypointsFile {
         self.weights.get(&index).copied().unwrap_or(1.0)
     }
 
-    /// Checks finiteness (positions and weights), weights ≥ 0, and that every weight belongs
-    /// to a given keypoint.
+    /// Checks finiteness (positions and weights), positions within
+    /// [`panoman_mesh::geom::MAX_COORDINATE`] (10 km) of the origin per coordinate, weights ≥ 0,
+    /// and that every weight belongs to a given keypoint.
     ///
     /// # Errors
     /// One line naming the keypoint.
@@ -439,6 +440,13 @@ impl KeypointsFile {
             let name = names.get(i).ok_or_else(|| format!("keypoint index {i}"))?;
             if p.iter().any(|c| !c.is_finite()) {
                 return Err(format!("keypoint `{name}` is not finite: {p:?}"));
+            }
+            if !panoman_mesh::geom::is_in_bounds(*p) {
+                return Err(format!(
+                    "keypoint `{name}` at {p:?} is out of bounds (|coordinate| > {} m; \
+                     positions are in metres)",
+                    panoman_mesh::geom::MAX_COORDINATE
+                ));
             }
         }
         for (&i, &w) in &self.weights {

@@ -8,7 +8,12 @@
 //!   triangulated (see [`triangulate_polygon`]).
 //! * Writers are atomic: the data go to a temporary file next to the target (`.<name>.tmp-<pid>-<n>`),
 //!   which is flushed, synced and then renamed onto the target; on any error the temporary file is
-//!   removed and the target is left as it was.
+//!   removed and the target is left as it was. A missing output directory is reported as
+//!   `<path>: output directory <dir> does not exist` (not as a missing input). Temporary files of
+//!   the same target left by a process that was killed (`.<name>.tmp-<pid>[-<n>]` whose process
+//!   no longer runs; checked through `/proc/<pid>` on Linux) are removed before writing (see
+//!   [`remove_stale_temp_files`]). [`check_output_path`] checks a location up front, before a
+//!   long computation.
 //! * Coordinates are printed with Rust's shortest round-trip formatting, so every finite `f64`
 //!   (including `-0.0` and subnormals) reads back bit-exactly.
 
@@ -173,6 +178,130 @@ pub(crate) fn write_f64<W: Write>(w: &mut W, x: f64) -> std::io::Result<()> {
 
 static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
+/// The directory an output file goes to (`.` for a bare file name).
+fn output_dir(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// A [`MeshError::Io`] for `path` whose message is `what`.
+fn io_error(path: &Path, kind: std::io::ErrorKind, what: String) -> MeshError {
+    MeshError::Io {
+        path: path.to_path_buf(),
+        source: std::io::Error::new(kind, what),
+    }
+}
+
+/// Checks that the directory of the output file `path` exists and is a directory.
+fn check_output_dir(path: &Path) -> Result<PathBuf> {
+    if path.file_name().is_none() {
+        return Err(format_error(path, "output path does not name a file"));
+    }
+    let dir = output_dir(path);
+    match fs::metadata(&dir) {
+        Ok(m) if m.is_dir() => Ok(dir),
+        Ok(_) => Err(io_error(
+            path,
+            std::io::ErrorKind::NotADirectory,
+            format!("output directory {} is not a directory", dir.display()),
+        )),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(io_error(
+            path,
+            std::io::ErrorKind::NotFound,
+            format!("output directory {} does not exist", dir.display()),
+        )),
+        Err(source) => Err(MeshError::Io {
+            path: path.to_path_buf(),
+            source,
+        }),
+    }
+}
+
+/// Checks, before any long computation, that `path` can be written: its directory exists and
+/// a probe file can be created in it (and is removed again). The target itself is not touched.
+///
+/// # Errors
+/// [`MeshError::Io`] naming `path`: `output directory <dir> does not exist`, `… is not a
+/// directory`, or the error of creating the probe (e.g. `Permission denied`, a read-only file
+/// system).
+pub fn check_output_path(path: &Path) -> Result<()> {
+    let dir = check_output_dir(path)?;
+    let mut probe_name = OsString::from(".");
+    probe_name.push(path.file_name().unwrap_or_default());
+    probe_name.push(format!(
+        ".tmp-{}-{}",
+        std::process::id(),
+        TMP_COUNTER.fetch_add(1, Ordering::Relaxed)
+    ));
+    let probe = dir.join(probe_name);
+    match OpenOptions::new().write(true).create_new(true).open(&probe) {
+        Ok(f) => {
+            drop(f);
+            let _ = fs::remove_file(&probe);
+            Ok(())
+        }
+        Err(e) => Err(io_error(
+            path,
+            e.kind(),
+            format!("cannot write to output directory {}: {e}", dir.display()),
+        )),
+    }
+}
+
+/// Whether process `pid` is running. On Linux this looks at `/proc/<pid>`; elsewhere every
+/// process is assumed to run (nothing is removed).
+fn process_is_alive(pid: u32) -> bool {
+    if pid == std::process::id() {
+        return true;
+    }
+    if cfg!(target_os = "linux") && Path::new("/proc/self").exists() {
+        Path::new("/proc").join(pid.to_string()).exists()
+    } else {
+        true
+    }
+}
+
+/// Removes the temporary files of the atomic writers for target `path` that a killed process
+/// left behind: files `.<name>.tmp-<pid>` or `.<name>.tmp-<pid>-<n>` in the target's directory
+/// whose process `<pid>` no longer runs (Linux: no `/proc/<pid>`; on other systems nothing is
+/// removed). Failures are ignored (this is housekeeping); returns the number removed.
+pub fn remove_stale_temp_files(path: &Path) -> usize {
+    let Some(name) = path.file_name() else {
+        return 0;
+    };
+    let mut prefix = OsString::from(".");
+    prefix.push(name);
+    prefix.push(".tmp-");
+    let prefix = prefix.to_string_lossy().into_owned();
+    let Ok(entries) = fs::read_dir(output_dir(path)) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for entry in entries.flatten() {
+        let file_name = entry.file_name();
+        let file_name = file_name.to_string_lossy();
+        let Some(rest) = file_name.strip_prefix(&prefix) else {
+            continue;
+        };
+        let (pid, counter) = rest.split_once('-').unwrap_or((rest, "0"));
+        let (Ok(pid), true) = (
+            pid.parse::<u32>(),
+            !counter.is_empty() && counter.bytes().all(|b| b.is_ascii_digit()),
+        ) else {
+            continue;
+        };
+        if !process_is_alive(pid)
+            && entry.file_type().is_ok_and(|t| t.is_file())
+            && fs::remove_file(entry.path()).is_ok()
+        {
+            removed += 1;
+        }
+    }
+    removed
+}
+
 /// Writes `bytes` to `path` atomically (see [`write_atomically`]).
 pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomically(path, |w| std::io::Write::write_all(w, bytes))
@@ -182,6 +311,9 @@ pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
 /// which is then flushed, synced to disk and renamed onto `path`. On any failure the temporary
 /// file is removed and a [`MeshError::Io`] naming `path` is returned. This is the one atomic
 /// writer of the project (meshes, models, reports, images).
+///
+/// A missing directory is `<path>: output directory <dir> does not exist`; stale temporary
+/// files of `path` left by killed processes are removed first ([`remove_stale_temp_files`]).
 pub fn write_atomically<F>(path: &Path, body: F) -> Result<()>
 where
     F: FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
@@ -190,13 +322,11 @@ where
         path: path.to_path_buf(),
         source,
     };
+    let dir = check_output_dir(path)?;
     let Some(name) = path.file_name() else {
         return Err(format_error(path, "output path does not name a file"));
     };
-    let dir: PathBuf = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
+    remove_stale_temp_files(path);
     let mut tmp_name = OsString::from(".");
     tmp_name.push(name);
     tmp_name.push(format!(
