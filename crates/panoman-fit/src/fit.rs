@@ -1,4 +1,4 @@
-//! Fitting PanoMan to sparse 3D constraints (paper §5, Eq. 6–11; algorithms.md §4).
+//! Fitting PanoMan to sparse 3D constraints (paper §5, Eq. 6–11; docs/design/shell-fit.md §1).
 //!
 //! The unknowns are the vertices V and the parameters p = (α, β). The energy is the discrete
 //! shell toward the guidance pose `B_P(α, β)` plus constraints:
@@ -11,7 +11,7 @@
 //! ℓ* = ℓ^r(α) ⊙ (1 + X̄_L + M_L β_L + R_L),  φ* = φ^r(α) + X̄_A + M_A β_A + R_A        (Eq. 3–5)
 //! ```
 //!
-//! It is minimised by alternation (algorithms.md §4.4, "simpler first version"): a V-step is a
+//! It is minimised by alternation (docs/design/shell-fit.md §3.1): a V-step is a
 //! Levenberg–Marquardt solve of the shell energy with the constraints
 //! ([`panoman_mesh::shell::ShellSolver`], fixed sparsity pattern and symbolic factorization
 //! built once per model load, including the couplings of the keypoint regressors); a β-step is
@@ -77,7 +77,7 @@ pub struct FitOptions {
     /// Numeric Cholesky factorizations on the rayon pool (faer's parallel supernodal
     /// factorization); sequential otherwise. Default false: measured faster on 2 cores.
     pub parallel_factor: bool,
-    /// Initial LM damping μ of each V-step (relative to diag JᵀJ, algorithms.md §4.5).
+    /// Initial LM damping μ of each V-step (relative to diag JᵀJ, docs/design/shell-fit.md §3.4).
     /// Default 1e−2.
     pub mu_init: f64,
     /// Initial β_B from the motion MLP applied to the initializer's skeleton pose (PanoMan

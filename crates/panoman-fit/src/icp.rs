@@ -1,4 +1,4 @@
-//! Point-cloud correspondences for ICP (algorithms.md §4.2, "ICP"): each scan point is matched
+//! Point-cloud correspondences for ICP (docs/design/shell-fit.md §2.2, "ICP"): each scan point is matched
 //! to its closest point on the current surface (nearest vertex by kd-tree, then the closest
 //! point on the triangles around it), giving a point-to-plane constraint
 //! `√w n̂_fᵀ(Σ_m b_m x_m − p)` on the triangle's barycentric point. Pairs farther than

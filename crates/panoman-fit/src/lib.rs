@@ -1,6 +1,6 @@
 //! # panoman-fit
 //!
-//! Fitting PanoMan to sparse 3D data (paper §5, Total Capture's staging; algorithms.md §4):
+//! Fitting PanoMan to sparse 3D data (paper §5, Total Capture's staging; docs/design/shell-fit.md §1):
 //! the discrete-shell energy toward the model's guidance pose with keypoint, vertex-handle and
 //! point-cloud (ICP) constraints, minimised by Levenberg–Marquardt V-steps alternating with
 //! least-squares β-steps ([`fit`]); closest-point matching ([`icp`]).

@@ -1,4 +1,4 @@
-//! The whole fit of one frame (PanoMan §5.3, algorithms.md §4.6): skeletal IK of the LBS rig
+//! The whole fit of one frame (PanoMan §5.3, docs/design/shell-fit.md §4): skeletal IK of the LBS rig
 //! to the keypoints (pose, phenotype, face units) gives the initial mesh and rest shape; α is
 //! the PCA projection of that rest shape and β the projection of the IK mesh's RL/RA; then the
 //! staged shell fit of [`crate::fit`]. The LBS baseline is the IK alone. With a point cloud

@@ -159,7 +159,7 @@ fn twist_volume_loss() {
     }
 }
 
-/// Enclosed-volume change of the LBS skin for single-joint sweeps over the §7.3 ranges and
+/// Enclosed-volume change of the LBS skin for single-joint sweeps over the docs/design/rig-and-ik.md §3.3 ranges and
 /// for sampled body poses (context for the body-pose sampler).
 fn joint_volume_report() {
     let f = fx();

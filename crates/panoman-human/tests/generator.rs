@@ -1,5 +1,5 @@
 //! The Anny-equivalent generator against the reference outputs of anny 0.6.2
-//! (`shared/fixtures/anny-oracle`, anny-assets.md §9): rest mesh, joints, pose deltas from the
+//! (`shared/fixtures/anny-oracle`, docs/design/assets.md §7): rest mesh, joints, pose deltas from the
 //! Euler parameters, FK and LBS to ≤ 1e-9 m on all 13,718 vertices and 163 bones; parameter
 //! errors. The throughput measurement is the example `generator_throughput`.
 
@@ -171,7 +171,7 @@ fn fixture_cases_match_oracle() {
 
 #[test]
 fn identity_pose_translates_by_minus_root_head() {
-    // §6.4: identity deltas for every bone give rest − h_0.
+    // docs/design/rig-and-ik.md §2.4: identity deltas for every bone give rest − h_0.
     let g = generator();
     let id = g
         .identity(&panoman_human::params::ShapeParams::default())
@@ -272,7 +272,7 @@ fn rest_height(g: &Generator, p: panoman_human::phenotype::Phenotype) -> f64 {
 
 #[test]
 fn phenotype_extremes_match_the_height_table() {
-    // anny-assets.md §5.1: rest heights by age (gender 0.5, height 0.5), and the extremes
+    // docs/design/assets.md §5.1: rest heights by age (gender 0.5, height 0.5), and the extremes
     // male + height 1 / female + height 0. The table is approximate (its entries deviate from
     // exact vertex extents by up to 1.3 cm in both directions), hence the tolerance; exactness
     // is checked against the oracle cases above and for the newborn rule below.
@@ -318,7 +318,7 @@ fn phenotype_extremes_match_the_height_table() {
 
 #[test]
 fn newborn_is_the_scaled_baby() {
-    // §5.3: at age −1/3 the rest mesh is s ⊙ (T + baby offsets) = s ⊙ rest(age 0).
+    // docs/design/assets.md §5.3: at age −1/3 the rest mesh is s ⊙ (T + baby offsets) = s ⊙ rest(age 0).
     use panoman_human::phenotype::{NEWBORN_SCALE, Phenotype};
     let g = generator();
     for (gender, height) in [(0.5, 0.5), (0.0, 1.0), (0.8, 0.1)] {
@@ -358,7 +358,7 @@ fn breast_and_race_parameters() {
         ..Default::default()
     };
     let base = g.rest_mesh(&shape(woman)).unwrap();
-    // Cup size / firmness 0.5 zero every breast coefficient (§5.3).
+    // Cup size / firmness 0.5 zero every breast coefficient (docs/design/assets.md §5.3).
     let coef = g.phenotype_coefficients(&shape(woman));
     assert_eq!(coef.len(), 624);
     assert!(coef[408..].iter().all(|&c| c == 0.0));

@@ -62,7 +62,7 @@ fn anny_faces_match_the_fixture() {
         .chunks_exact(3)
         .map(|t| [t[0] as u32, t[1] as u32, t[2] as u32])
         .collect();
-    // Same triangles in the same order. Anny-assets.md §4.3 warns that 12 eyeball near-tie
+    // Same triangles in the same order. docs/design/assets.md §4.3 warns that 12 eyeball near-tie
     // triangles may differ with the exact world formula; with Anny's bit-exact world map
     // (basemesh::world_map) and the strict `<` rule there are none, so demand equality.
     let differ: Vec<usize> = (0..anny.len()).filter(|&t| ours[t] != anny[t]).collect();

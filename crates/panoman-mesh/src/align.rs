@@ -2,7 +2,7 @@
 //!
 //! * [`nearest_rotation`]: the projection onto SO(3), `argmax_{R∈SO(3)} tr(Rᵀ M)`, i.e.
 //!   `R = U·diag(1, 1, sign det(UVᵀ))·Vᵀ` for `M = U Σ Vᵀ` (used by `g` after the linear frame
-//!   solve, algorithms.md §2.3).
+//!   solve, docs/design/rla-and-g.md §3.3).
 //! * [`rigid_align`]: weighted Kabsch/Procrustes, `argmin_{R,t} Σ w_i |R a_i + t − b_i|²`.
 
 use crate::geom::{M3, V3, add, det, matmul, matvec, norm, sub, transpose};

@@ -5,7 +5,7 @@
 //! signed dihedral angles `RA = wrap(φ − φ_rest)`, paper §4.1) with analytic gradients, and the
 //! reconstruction `g` (RL, RA, rest shape → vertices, paper Appendix A).
 //!
-//! Conventions (see `docs`/`algorithms.md` §0): geometry in `f64` metres; faces are
+//! Conventions (see `docs/design/rla-and-g.md` §1): geometry in `f64` metres; faces are
 //! counter-clockwise seen from outside (outward normals); vertex and face indices are `u32`.
 
 // Numeric kernels index several per-element arrays in lockstep (positions, tables, outputs);

@@ -1,5 +1,5 @@
 //! The reconstruction `g`: target edge lengths and dihedral angles (from RL, RA and a rest
-//! shape) → vertex positions (PanoMan Appendix A; algorithms.md §2).
+//! shape) → vertex positions (PanoMan Appendix A; docs/design/rla-and-g.md §3).
 //!
 //! 1. **Local triangle coordinates.** Face `t = (p0, p1, p2)` gets `q0 = 0`, `q1 = (ℓ01, 0, 0)`,
 //!    `q2 = (c, h, 0)` with `c = (ℓ01² + ℓ02² − ℓ12²)/(2ℓ01)`, `h = sqrt(max(ℓ02² − c², ε ℓ01²))`,
@@ -39,7 +39,7 @@ use faer::dyn_stack::MemBuffer;
 use rayon::prelude::*;
 
 /// Clamp ε of the triangle height: `h ≥ sqrt(ε)·ℓ01` (handles blended lengths that violate the
-/// triangle inequality, algorithms.md §6.5).
+/// triangle inequality, docs/design/rla-and-g.md §3.6).
 const HEIGHT_EPS: f64 = 1e-12;
 /// Faces per rayon task.
 const FACE_CHUNK: usize = 2048;

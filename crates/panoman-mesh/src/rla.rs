@@ -12,9 +12,9 @@
 //!
 //! `φ` is 0 on a flat diamond and positive on convex edges of an outward-oriented surface. The
 //! paper's "inner included angle" is `a = π − φ`, so the paper's RA is `−RA` here (internal
-//! sign convention, algorithms.md §1.1). RA is 0 on boundary edges.
+//! sign convention, docs/design/rla-and-g.md §2.1). RA is 0 on boundary edges.
 //!
-//! The hinge gradients (algorithms.md §1.2) are [`length_gradient`] and [`dihedral_gradient`].
+//! The hinge gradients (docs/design/rla-and-g.md §2.2) are [`length_gradient`] and [`dihedral_gradient`].
 
 use crate::error::{MeshError, Result};
 use crate::geom::{V3, cross, dot, norm, scale, sub};
@@ -130,8 +130,8 @@ impl RestGeometry {
         })
     }
 
-    /// Target lengths and angles `ℓ* = ℓ_r ⊙ max(1 + RL, ε)`, `φ* = φ_r + RA` (algorithms.md
-    /// §1.1), written into `lengths`, `angles`; returns how many lengths were clamped.
+    /// Target lengths and angles `ℓ* = ℓ_r ⊙ max(1 + RL, ε)`, `φ* = φ_r + RA` (docs/design/rla-and-g.md
+    /// §2.1), written into `lengths`, `angles`; returns how many lengths were clamped.
     ///
     /// Blended or model-predicted RL (linear in β) can fall below −1 on edges whose RL varies
     /// strongly (lips, eyelids); the floor [`MIN_RELATIVE_LENGTH`] keeps every target length
@@ -245,7 +245,7 @@ pub fn length_gradient(xi: V3, xj: V3) -> [V3; 2] {
 }
 
 /// Gradient of the signed dihedral angle φ of the diamond (i, j, k, l) with respect to
-/// (x_i, x_j, x_k, x_l) (algorithms.md §1.2):
+/// (x_i, x_j, x_k, x_l) (docs/design/rla-and-g.md §2.2):
 ///
 /// ```text
 /// g_k = −(ℓ/|N1|²)·N1,   g_l = −(ℓ/|N2|²)·N2

@@ -1,7 +1,7 @@
 //! Discrete-shell refinement of vertex positions toward target edge lengths and dihedral angles
-//! (algorithms.md §4.1–4.5, restricted to the vertex unknowns V).
+//! (docs/design/shell-fit.md §2.1–3.4, restricted to the vertex unknowns V).
 //!
-//! `g` (algorithms.md §2) is exact for integrable RL/RA but amplifies non-integrable errors; the
+//! `g` (docs/design/rla-and-g.md §3) is exact for integrable RL/RA but amplifies non-integrable errors; the
 //! paper uses it only as an initializer. [`ShellSolver`] minimises
 //!
 //! ```text
@@ -10,20 +10,20 @@
 //! ```
 //!
 //! with Levenberg–Marquardt: residuals `r_L,e = √w_L,e (ℓ_e/ℓ*_e − 1)` (Jacobian row
-//! `√w_L,e/ℓ*_e · (−ê, ê)` on (x_i, x_j), §1.2), `r_A,e = √w_A,e wrap(φ_e − φ*_e)` (row
-//! `√w_A,e ∇φ_e` on (x_i, x_j, x_k, x_l), §1.2), `r_h = √w_h (x_h − x̂_h)` (row `√w_h I`).
+//! `√w_L,e/ℓ*_e · (−ê, ê)` on (x_i, x_j), docs/design/rla-and-g.md §2.2), `r_A,e = √w_A,e wrap(φ_e − φ*_e)` (row
+//! `√w_A,e ∇φ_e` on (x_i, x_j, x_k, x_l), docs/design/rla-and-g.md §2.2), `r_h = √w_h (x_h − x̂_h)` (row `√w_h I`).
 //! With `g = Jᵀr` (so `∇E = 2g`) each iteration solves
 //!
 //! ```text
-//! (JᵀJ + μ D) δ = −g,    D = max(diag JᵀJ, 1e−8·max diag JᵀJ)        (§4.4, Marquardt scaling)
+//! (JᵀJ + μ D) δ = −g,    D = max(diag JᵀJ, 1e−8·max diag JᵀJ)        (docs/design/shell-fit.md §3.3, Marquardt scaling)
 //! ```
 //!
 //! JᵀJ has a fixed pattern of 3×3 blocks over the vertex pairs in edges ∪ diamond diagonals
-//! (k, l) ∪ diagonal (§4.3); it is stored as a scalar lower-triangular CSC matrix of size 3|V|,
-//! analysed symbolically once, and filled through a per-edge *scatter map* of value slots (§4.4).
-//! The damping μ follows Nielsen's rule (§4.5). Default weights: `w_L = 1`,
+//! (k, l) ∪ diagonal (docs/design/shell-fit.md §3.2); it is stored as a scalar lower-triangular CSC matrix of size 3|V|,
+//! analysed symbolically once, and filled through a per-edge *scatter map* of value slots (docs/design/shell-fit.md §3.3).
+//! The damping μ follows Nielsen's rule (docs/design/shell-fit.md §3.4). Default weights: `w_L = 1`,
 //! `w_A = c_B² ω_e²` with the dimensionless Fröhlich–Botsch weight
-//! `ω_e = ℓ*_e / sqrt((A_fL + A_fR)/3)` measured on the initial mesh (§4.1).
+//! `ω_e = ℓ*_e / sqrt((A_fL + A_fR)/3)` measured on the initial mesh (docs/design/shell-fit.md §2.1).
 
 use crate::error::{MeshError, Result};
 use crate::geom::{V3, cross, dot, norm, scale, sub};
@@ -41,13 +41,13 @@ use std::time::Instant;
 /// Edges per rayon task in the residual/Jacobian evaluation.
 const EDGE_CHUNK: usize = 2048;
 
-/// Smallest damping factor μ (keeps the rigid null space of JᵀJ damped, §6 item 8).
+/// Smallest damping factor μ (keeps the rigid null space of JᵀJ damped, docs/design/shell-fit.md §8.3).
 const MU_MIN: f64 = 1e-10;
 
 /// Largest damping factor μ before the solver gives up (steps are then vanishingly small).
 const MU_MAX: f64 = 1e16;
 
-/// A soft positional constraint `w |x_v − x̂|²` (algorithms.md §4.2, vertex handles). `weight`
+/// A soft positional constraint `w |x_v − x̂|²` (docs/design/shell-fit.md §2.2, vertex handles). `weight`
 /// has units 1/length², e.g. `λ_H/ℓ̄²` for a dimensionless λ_H.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Handle {
@@ -61,7 +61,7 @@ pub struct Handle {
 
 /// A soft constraint on a fixed linear combination of vertices (a keypoint regressor row, a
 /// barycentric surface point): `p(x) = Σ_m b_m x_m`, residual `√w (p(x) − p̂)` (3 rows), or
-/// `√w n̂ᵀ(p(x) − p̂)` (point-to-plane, 1 row) when `normal` is set (algorithms.md §4.2).
+/// `√w n̂ᵀ(p(x) − p̂)` (point-to-plane, 1 row) when `normal` is set (docs/design/shell-fit.md §2.2).
 /// `weight` has units 1/length². Every vertex pair of `rows` must be in the solver's pattern
 /// (see [`ShellSolver::with_extra_pairs`]; pairs of one triangle always are).
 #[derive(Clone, Debug, PartialEq)]
@@ -98,8 +98,8 @@ impl PointConstraint {
     }
 }
 
-/// Targets and weights of the shell energy (module docs, algorithms.md §4.1): per edge the
-/// target length ℓ*_e > 0, target signed dihedral angle φ*_e (internal sign, §1.1; ignored on
+/// Targets and weights of the shell energy (module docs, docs/design/shell-fit.md §2.1): per edge the
+/// target length ℓ*_e > 0, target signed dihedral angle φ*_e (internal sign, docs/design/rla-and-g.md §2.1; ignored on
 /// boundary edges), weights w_L,e ≥ 0 and w_A,e ≥ 0, and optional vertex handles.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShellTargets {
@@ -120,7 +120,7 @@ pub struct ShellTargets {
 
 impl ShellTargets {
     /// Targets `ℓ*`, `φ*` with the default weights: `w_L = 1`, `w_A = c_B² ω_e²`,
-    /// `ω_e = ℓ*_e / sqrt((A_fL + A_fR)/3)` with the face areas of `x_init` (algorithms.md §4.1;
+    /// `ω_e = ℓ*_e / sqrt((A_fL + A_fR)/3)` with the face areas of `x_init` (docs/design/shell-fit.md §2.1;
     /// see [`ShellTargets::bending_weights`]).
     pub fn new(
         topo: &Topology,
@@ -152,7 +152,7 @@ impl ShellTargets {
     }
 
     /// Targets from an RLA pair: `ℓ* = ℓ_r ⊙ max(1 + RL, ε)`, `φ* = φ_r + RA`
-    /// ([`RestGeometry::targets_into`], algorithms.md §1.1), default weights as in
+    /// ([`RestGeometry::targets_into`], docs/design/rla-and-g.md §2.1), default weights as in
     /// [`ShellTargets::new`].
     pub fn from_rla(
         topo: &Topology,
@@ -183,7 +183,7 @@ impl ShellTargets {
     }
 
     /// Default bend weights `w_A,e = c_B² ω_e²`, `ω_e² = 3 ℓ*_e² / (A_fL + A_fR)` with the face
-    /// areas of `x` (algorithms.md §4.1; dimensionless, so the stretch/bend balance does not
+    /// areas of `x` (docs/design/shell-fit.md §2.1; dimensionless, so the stretch/bend balance does not
     /// depend on units). 0 on boundary edges and on diamonds of (near-)zero area.
     pub fn bending_weights(topo: &Topology, lengths: &[f64], x: &[V3], c_b: f64) -> Vec<f64> {
         let area = |f: u32| {
@@ -288,7 +288,7 @@ impl ShellTargets {
     }
 }
 
-/// Controls of the Levenberg–Marquardt iteration (algorithms.md §4.5).
+/// Controls of the Levenberg–Marquardt iteration (docs/design/shell-fit.md §3.4).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShellOptions {
     /// Iteration cap (linear solves, accepted or not). Default 10.
@@ -303,7 +303,7 @@ pub struct ShellOptions {
     /// Initial damping μ. Default 1e−4.
     pub mu_init: f64,
     /// Bend rows of diamonds with a height `h_k` or `h_l` below `degenerate_height·ℓ̄` are left
-    /// out of the Jacobian (their residual still counts in E; §6 item 4). Default 1e−6.
+    /// out of the Jacobian (their residual still counts in E; docs/design/shell-fit.md §8.2). Default 1e−6.
     pub degenerate_height: f64,
     /// Numeric factorization on the rayon pool (`Par::rayon(0)`) instead of sequentially.
     /// Default true.
@@ -358,7 +358,7 @@ pub struct ShellReport {
     pub length_rms: f64,
     /// Final rms over interior edges of `wrap(φ_e − φ*_e)` (radians, unweighted).
     pub angle_rms: f64,
-    /// Bend rows left out of the last Jacobian as near-degenerate (§6 item 4); the last
+    /// Bend rows left out of the last Jacobian as near-degenerate (docs/design/shell-fit.md §8.2); the last
     /// linearisation, which precedes the final step when that step is not re-linearised.
     pub skipped_bend_rows: usize,
     /// Final damping μ.
@@ -380,7 +380,7 @@ struct EdgeRows {
 }
 
 /// Levenberg–Marquardt solver for the discrete-shell energy over the vertices of one topology
-/// (module docs; algorithms.md §4.3–4.5). Construction builds the block pattern of JᵀJ, the
+/// (module docs; docs/design/shell-fit.md §3.2–3.4). Construction builds the block pattern of JᵀJ, the
 /// scatter map and the symbolic Cholesky factorization once; [`ShellSolver::solve`] then only
 /// assembles values, refactors numerically and solves. All work buffers are allocated on the
 /// first use and reused (no allocation inside the iteration loop).
@@ -472,7 +472,7 @@ const PAIRS: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 
 
 impl ShellSolver {
     /// Builds the fixed pattern of JᵀJ (3×3 blocks over edges ∪ diamond diagonals ∪ diagonal,
-    /// algorithms.md §4.3), the scatter map and the symbolic factorization (§4.4).
+    /// docs/design/shell-fit.md §3.2), the scatter map and the symbolic factorization (docs/design/shell-fit.md §3.3).
     ///
     /// Fails on a diamond whose two opposite vertices coincide (k = l).
     pub fn new(topo: &Topology) -> Result<Self> {
@@ -673,7 +673,7 @@ impl ShellSolver {
     }
 
     /// Evaluates the residuals and Jacobian rows at `x` and assembles `g = Jᵀr` and the lower
-    /// triangle of JᵀJ into the fixed pattern through the scatter map (algorithms.md §4.3–4.4);
+    /// triangle of JᵀJ into the fixed pattern through the scatter map (docs/design/shell-fit.md §3.2–3.3);
     /// returns E(x) = |r|². Near-degenerate bend rows (height < `degenerate_height·ℓ̄`) are left
     /// out of J. Fails if the assembly produced a non-finite value.
     pub fn linearize(
@@ -983,7 +983,7 @@ impl ShellSolver {
     }
 
     /// Solves `(JᵀJ + μD) δ = −g` for the last linearisation by a numeric refactorization with
-    /// the symbolic analysis from [`ShellSolver::new`] (algorithms.md §4.4). `delta` has length
+    /// the symbolic analysis from [`ShellSolver::new`] (docs/design/shell-fit.md §3.3). `delta` has length
     /// 3|V|. Fails if the damped matrix is not numerically positive definite.
     pub fn step(&mut self, mu: f64, parallel: bool, delta: &mut [f64]) -> Result<()> {
         assert!(self.linearized && delta.len() == self.n);
@@ -1012,8 +1012,8 @@ impl ShellSolver {
         Ok(())
     }
 
-    /// Minimises E from `x` (e.g. the output of `g`) by Levenberg–Marquardt (algorithms.md
-    /// §4.4–4.5): gain ratio `ρ = (E − E_new)/(δᵀ(μDδ − g))` (the decrease predicted by the
+    /// Minimises E from `x` (e.g. the output of `g`) by Levenberg–Marquardt (docs/design/shell-fit.md
+    /// §3.3–3.4): gain ratio `ρ = (E − E_new)/(δᵀ(μDδ − g))` (the decrease predicted by the
     /// Gauss–Newton model), accept if ρ > 1e−3 with `μ ← μ·max(1/3, 1 − (2ρ − 1)³)`, `ν ← 2`,
     /// else `μ ← μν`, `ν ← 2ν`. Stops on `E ≤ energy_tol`, a relative decrease below `rel_tol`
     /// twice in a row, a small step, or the iteration cap. `x` holds the result (the best
@@ -1311,7 +1311,7 @@ pub fn residual_rms(topo: &Topology, targets: &ShellTargets, x: &[V3]) -> (f64, 
     )
 }
 
-/// Convenience (algorithms.md §4): refines `x` (typically `g`'s output for the same RLA) toward
+/// Convenience (docs/design/shell-fit.md §1): refines `x` (typically `g`'s output for the same RLA) toward
 /// the targets `ℓ* = ℓ_r(1 + RL)`, `φ* = φ_r + RA` with the default weights for `c_b`, building
 /// a one-off [`ShellSolver`]. For repeated solves on one topology keep a solver instead.
 pub fn refine(
@@ -1364,7 +1364,7 @@ fn energy_of(topo: &Topology, t: &ShellTargets, x: &[V3], chunk_sums: &mut [f64]
     energy
 }
 
-/// Residuals and Jacobian rows of edge `e` (§1.2 hinge gradients, scaled by the weights).
+/// Residuals and Jacobian rows of edge `e` (docs/design/rla-and-g.md §2.2 hinge gradients, scaled by the weights).
 #[inline]
 fn edge_rows(topo: &Topology, t: &ShellTargets, x: &[V3], e: usize, h_min: f64) -> EdgeRows {
     let [i, j] = topo.edges[e];

@@ -96,7 +96,7 @@ impl SpdFactor {
     /// Symbolic analysis (AMD ordering, faer's supernodal/simplicial choice) of the lower
     /// triangle pattern `a`, without a numeric factorization: call
     /// [`SpdFactor::refactor_ref`] before solving. Used when the pattern is built once and the
-    /// values are assembled into a caller-owned array (algorithms.md §4.4, scatter map).
+    /// values are assembled into a caller-owned array (docs/design/shell-fit.md §3.3, scatter map).
     pub fn symbolic_only(a: SymbolicSparseColMatRef<'_, usize>) -> Result<Self> {
         let n = a.nrows();
         let symbolic =

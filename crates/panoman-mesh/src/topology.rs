@@ -1,7 +1,7 @@
 //! Topology tables of a triangle mesh, built once per connectivity and validated.
 //!
 //! For every undirected edge `e` the table stores the *diamond* used by RL/RA and `g`
-//! (algorithms.md §0, §1.1):
+//! (docs/design/rla-and-g.md §1, §2.1):
 //!
 //! ```text
 //!            k                 fL = (i, j, k) contains the half-edge i→j,

@@ -1,4 +1,4 @@
-//! Tests of the discrete-shell Levenberg–Marquardt solver (algorithms.md §4.3–4.5).
+//! Tests of the discrete-shell Levenberg–Marquardt solver (docs/design/shell-fit.md §3.2–3.4).
 #![allow(clippy::needless_range_loop)]
 
 mod common;

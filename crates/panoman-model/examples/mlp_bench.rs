@@ -1,4 +1,4 @@
-//! Throughput of the MLP toolkit (algorithms.md §5) on synthetic data:
+//! Throughput of the MLP toolkit (docs/design/splocs-model.md §5) on synthetic data:
 //! `cargo run --release -p panoman-model --example mlp_bench [-- epochs N pca_n pca_d]`.
 //!
 //! * correction MLP 500 → 1500 → 256 (PCA head codes), N samples, batch 128, MSE;

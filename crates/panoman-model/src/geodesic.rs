@@ -1,18 +1,18 @@
-//! Approximate geodesic distances between edges of a mesh (algorithms.md §3.3).
+//! Approximate geodesic distances between edges of a mesh (docs/design/splocs-model.md §3.3).
 //!
-//! The support maps of the sparse localized decomposition (§3.1, §3.4) need, for each
+//! The support maps of the sparse localized decomposition (docs/design/splocs-model.md §3.1, §3.4) need, for each
 //! component, the geodesic distance from its centre edge to every other edge, measured on the
 //! mean rest shape V̄. This module computes them with a multi-source Dijkstra over the
 //! vertices:
 //!
 //! * graph: the mesh edges plus the *diamond diagonals* k–l of every interior edge
-//!   (algorithms.md §0 diamond), each weighted by its Euclidean length on V̄; the diagonals
+//!   (docs/design/rla-and-g.md §1 diamond), each weighted by its Euclidean length on V̄; the diagonals
 //!   add more directions and so reduce the metrication error of pure edge paths;
-//! * by default ([`Propagation::Unfolding`], an addition to §3.3) each settled vertex also
+//! * by default ([`Propagation::Unfolding`], an addition to docs/design/splocs-model.md §3.3) each settled vertex also
 //!   updates its triangles' far vertices by planar unfolding (the fast-marching update), which
 //!   removes most of the remaining metrication error: measured mean/max relative error beyond
 //!   10 edge lengths 0.15 %/0.55 % on a 10k-vertex sphere, against 2 %/9 % for plain Dijkstra
-//!   ([`Propagation::Dijkstra`], exactly §3.3), which on triangulated quads is off by up to
+//!   ([`Propagation::Dijkstra`], exactly docs/design/splocs-model.md §3.3), which on triangulated quads is off by up to
 //!   11 % in some directions;
 //! * sources: the two endpoints a, b of the centre edge c, both at distance ℓ_c/2 (the
 //!   distance from the edge's midpoint);
@@ -21,7 +21,7 @@
 //!
 //! Expansion stops at a caller-given radius, so a query costs time proportional to the area
 //! inside that radius (plus one O(#E) pass to write the output). Nothing of size #E × #E is
-//! ever built (that would be 5.6 GB in f32 for the body, §3.3).
+//! ever built (that would be 5.6 GB in f32 for the body, docs/design/splocs-model.md §3.3).
 //!
 //! The structure is built once per topology and positions ([`EdgeGeodesics::new`]); queries
 //! reuse a [`GeodesicWorkspace`] and allocate nothing once the workspace has warmed up.
@@ -35,10 +35,10 @@ use panoman_mesh::topology::NONE;
 use crate::error::{ModelError, Result};
 use crate::splocs::ColumnDistances;
 
-/// How distances propagate in [`EdgeGeodesics`] (§3.3).
+/// How distances propagate in [`EdgeGeodesics`] (docs/design/splocs-model.md §3.3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Propagation {
-    /// Plain Dijkstra on the mesh edges plus the diamond diagonals k–l (algorithms.md §3.3).
+    /// Plain Dijkstra on the mesh edges plus the diamond diagonals k–l (docs/design/splocs-model.md §3.3).
     /// On triangulated quads (every quad split the same way) the link directions leave a 45°
     /// gap, so distances in some directions are overestimated by up to ≈ 10 %.
     Dijkstra,
@@ -53,7 +53,7 @@ pub enum Propagation {
 }
 
 /// Vertex graph of a mesh (edges + diamond diagonals, Euclidean weights) for edge-to-edge
-/// geodesic distances (algorithms.md §3.3).
+/// geodesic distances (docs/design/splocs-model.md §3.3).
 #[derive(Clone, Debug)]
 pub struct EdgeGeodesics {
     n_vertices: usize,
@@ -120,7 +120,7 @@ fn dist3(p: [f64; 3], q: [f64; 3]) -> f64 {
 impl EdgeGeodesics {
     /// Builds the weighted vertex graph of `topology` embedded at `positions` (V̄, meters):
     /// every mesh edge and every diamond diagonal k–l of an interior edge, with its Euclidean
-    /// length (§3.3). Parallel links (a diagonal that is also an edge, or shared by two
+    /// length (docs/design/splocs-model.md §3.3). Parallel links (a diagonal that is also an edge, or shared by two
     /// diamonds) keep the shortest length. Queries use [`Propagation::Unfolding`] (Dijkstra on
     /// that graph plus triangle unfolding updates, ≈ 10× more accurate than plain Dijkstra at
     /// about the same cost); see [`Self::with_propagation`] for plain Dijkstra.
@@ -256,7 +256,7 @@ impl EdgeGeodesics {
     }
 
     /// Vertex distances `d(v)` from the midpoint of edge `centre` (sources: its endpoints at
-    /// ℓ_c/2, §3.3), exact for the graph wherever `d(v) ≤ limit`; all other vertices are +∞.
+    /// ℓ_c/2, docs/design/splocs-model.md §3.3), exact for the graph wherever `d(v) ≤ limit`; all other vertices are +∞.
     /// The result lives in the workspace until its next query.
     ///
     /// Panics if `centre` is out of range or `ws` was made for another graph.
@@ -403,7 +403,7 @@ impl EdgeGeodesics {
         if d <= max_radius { d } else { f64::INFINITY }
     }
 
-    /// Edge distances from edge `centre` (§3.3): `out[e] = ½(d(a)+d(b))` for every edge
+    /// Edge distances from edge `centre` (docs/design/splocs-model.md §3.3): `out[e] = ½(d(a)+d(b))` for every edge
     /// `e = (a, b)` with that value ≤ `max_radius`, +∞ for the others, and `out[centre] = 0`.
     /// Vertices farther than `max_radius + max ℓ/2` are never expanded. `max_radius` may be
     /// `f64::INFINITY` (the whole connected component).
@@ -424,7 +424,7 @@ impl EdgeGeodesics {
     }
 
     /// As [`Self::edge_distances_from_edge`], but only for the edges listed in `edges`
-    /// (`out[j]` is the distance of edge `edges[j]`), e.g. the columns of a part mask (§3.2).
+    /// (`out[j]` is the distance of edge `edges[j]`), e.g. the columns of a part mask (docs/design/splocs-model.md §3.2).
     ///
     /// Panics if `out.len() != edges.len()` or an edge id is out of range.
     pub fn edge_distances_subset(
@@ -447,7 +447,7 @@ impl EdgeGeodesics {
     }
 }
 
-/// Geodesic distances restricted to the columns of a part mask (§3.2): column `j` of the
+/// Geodesic distances restricted to the columns of a part mask (docs/design/splocs-model.md §3.2): column `j` of the
 /// decomposition is mesh edge `columns[j]`; distances are measured on the whole mesh
 /// ([`EdgeGeodesics`]). This is the distance provider of [`crate::splocs::fit`].
 #[derive(Clone, Debug)]

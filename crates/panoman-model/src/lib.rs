@@ -2,8 +2,8 @@
 //!
 //! The PanoMan model (paper §4.2, §4.4, Eq. 2–5): shape PCA `B_S(α) = V̄ + Sα`, sparse localized
 //! components over per-edge RL/RA scalars (SPLOCS with ℓ1 soft-thresholding and adaptive
-//! supports, algorithms.md §3), the correction MLP `R(β_body)` and the motion MLP `θ → β`
-//! (algorithms.md §5), and model files.
+//! supports, docs/design/splocs-model.md §3), the correction MLP `R(β_body)` and the motion MLP `θ → β`
+//! (docs/design/splocs-model.md §5), and model files.
 //!
 //! Large learning matrices are f32; Gram matrices, objectives and factorizations are f64.
 

@@ -88,7 +88,7 @@ impl Block {
     }
 }
 
-/// The correction MLP `R(β_LB, β_AB)` with its PCA output head (algorithms.md §5.1): the
+/// The correction MLP `R(β_LB, β_AB)` with its PCA output head (docs/design/splocs-model.md §5.1): the
 /// output `μ + (P·mlp(β))⊘w` is the RL residual on the `body_l` columns followed by the RA
 /// residual on the `body_a` columns.
 #[derive(Clone, Debug)]
@@ -100,7 +100,7 @@ pub struct Correction {
     pub head: PcaHead,
 }
 
-/// The motion MLP `θ → (β_LB, β_AB)` (algorithms.md §5.2). Inputs: for each bone of
+/// The motion MLP `θ → (β_LB, β_AB)` (docs/design/splocs-model.md §5.2). Inputs: for each bone of
 /// `theta_bones`, the first two columns of its local rotation matrix (6-D representation) built
 /// from the dataset's Euler angles (radians, R = Rz·Ry·Rx).
 #[derive(Clone, Debug)]
@@ -114,7 +114,7 @@ pub struct Motion {
     pub theta_index: Vec<u32>,
 }
 
-/// Keypoints as fixed sparse combinations of vertices (architecture §5).
+/// Keypoints as fixed sparse combinations of vertices (docs/formats.md §3).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct KeypointRows {
     /// Keypoint names (TC-127 order when complete).
@@ -144,7 +144,7 @@ impl KeypointRows {
 
 /// Parameters of a PanoMan mesh: α (shape), β per block (motion), and a global rigid motion
 /// applied after g (rotation as an axis-angle vector in radians, then translation in metres).
-/// JSON layout of architecture §4; missing keys mean zeros, unknown keys are an error.
+/// JSON layout of docs/formats.md; missing keys mean zeros, unknown keys are an error.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Params {
@@ -399,7 +399,7 @@ impl PanoManModel {
         x
     }
 
-    /// β_B from a skeleton pose through the motion MLP (algorithms.md §5.2): `euler(bone)` gives
+    /// β_B from a skeleton pose through the motion MLP (docs/design/splocs-model.md §5.2): `euler(bone)` gives
     /// a bone's local Euler angles (radians, R = Rz·Ry·Rx; `None` = rest), the input is each
     /// of the MLP's bones' 6-D rotation (first two columns of R), and the output fills
     /// `body_l` and `body_a` with their mean coefficients (component 0) set to 1. `None` when

@@ -1,4 +1,4 @@
-//! Training the PanoMan model from a dataset H (paper §4.2–4.4; algorithms.md §3, §5).
+//! Training the PanoMan model from a dataset H (paper §4.2–4.4; docs/design/splocs-model.md §3, §5).
 //!
 //! Stages (each timed in the report):
 //! 1. **shape**: PCA of the training identities' rest shapes (Eq. 2);
@@ -789,7 +789,7 @@ fn median_support(c: &SparseRows) -> f64 {
 }
 
 /// The dimensionless bending weight `ω_e = ℓ_e / sqrt((A_fL + A_fR)/3)` on `positions`
-/// (algorithms.md §4.1, Fröhlich–Botsch); 0 on boundary edges.
+/// (docs/design/shell-fit.md §2.1, Fröhlich–Botsch); 0 on boundary edges.
 pub fn bending_weights(topo: &Topology, positions: &[V3]) -> Vec<f64> {
     let area = |f: u32| {
         let [a, b, c] = topo.faces[f as usize];

@@ -1,4 +1,4 @@
-//! Edge geodesics (algorithms.md §3.3): accuracy against exact distances on a sphere and a
+//! Edge geodesics (docs/design/splocs-model.md §3.3): accuracy against exact distances on a sphere and a
 //! plane, symmetry, radius truncation, triangle inequality, workspace reuse, part subsets.
 
 use panoman_mesh::shapes::icosphere;

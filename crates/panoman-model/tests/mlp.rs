@@ -1,4 +1,4 @@
-//! Tests of the MLP toolkit (algorithms.md §7.9): overfitting, PCA-head orthonormality,
+//! Tests of the MLP toolkit (docs/design/splocs-model.md §7): overfitting, PCA-head orthonormality,
 //! Jacobian vs finite differences, bit-exact serialization, determinism across thread counts,
 //! metric-loss gradients, early stopping.
 
@@ -69,7 +69,7 @@ fn max_abs_diff(a: &[f32], b: &[f32]) -> f64 {
 
 #[test]
 fn overfits_32_samples() {
-    // §7.9: overfit 32 samples to a normalized MSE < 1e−6, i.e. an rms error of 1e−3 standard
+    // docs/design/splocs-model.md §7: overfit 32 samples to a normalized MSE < 1e−6, i.e. an rms error of 1e−3 standard
     // deviations: ~4 orders of magnitude above f32 resolution, so f32 is no obstacle.
     let mut g = Gen(7);
     let (x, y) = regression(&mut g, 32, 10, 4, 0.0);
@@ -437,7 +437,7 @@ fn pca_head_is_orthonormal_and_near_optimal() {
     let r = head.rank();
     assert!((10..=40).contains(&r), "rank {r}");
     // ‖PᵀP − I‖_max in f64 from the f32 basis: f64-orthonormal before one f32 rounding per
-    // entry, so ~1e−7; §7.9 asks 1e−6 (f32).
+    // entry, so ~1e−7; docs/design/splocs-model.md §7 asks 1e−6 (f32).
     let p = head.basis();
     let mut worst = 0.0f64;
     for a in 0..r {

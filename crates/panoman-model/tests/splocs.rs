@@ -1,4 +1,4 @@
-//! Sparse localized decomposition (algorithms.md §3, tests of §7.7): the soft-threshold prox,
+//! Sparse localized decomposition (docs/design/splocs-model.md §3, tests of docs/design/splocs-model.md §7): the soft-threshold prox,
 //! the Gram-trick weight update against the explicit residual, the residual-free objective,
 //! monotone objective, recovery of planted localized signed components on a mesh, encoding of
 //! held-out samples, determinism across thread counts, input validation.
@@ -106,7 +106,7 @@ fn mul(a: &[f64], b: &[f64], r: usize, k: usize, c: usize) -> Vec<f64> {
     out
 }
 
-/// Explicit-residual BCD weight update (§3.6) with the same normalization and safeguard;
+/// Explicit-residual BCD weight update (docs/design/splocs-model.md §3.6) with the same normalization and safeguard;
 /// rescales C in place. Returns the scale factors.
 #[allow(clippy::too_many_arguments)]
 fn explicit_update(

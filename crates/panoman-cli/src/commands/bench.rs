@@ -146,7 +146,7 @@ fn bench_topology(rep: &Reporter, tag: &str, rest: &TriMesh, runs: usize) -> Res
 // Generator throughput: a new identity, posing one identity onto the full template, and a
 // batch of poses across all cores.
 
-/// Uniform ranges (degrees, local Euler XYZ, left side) of anny-assets.md §7.3 for the bones
+/// Uniform ranges (degrees, local Euler XYZ, left side) of docs/design/rig-and-ik.md §3.3 for the bones
 /// a body-pose sampler moves; right-side bones mirror them as (x, −y, −z). A stand-in for
 /// the proper pose samplers.
 #[rustfmt::skip]

@@ -1,5 +1,5 @@
 //! `panoman synth`: the synthetic training data H (rest rows, body poses, expressions, hand
-//! gestures) as `dataset.safetensors` + `dataset.json` (architecture.md §4), with an optional
+//! gestures) as `dataset.safetensors` + `dataset.json` (docs/formats.md), with an optional
 //! contact sheet of random rows.
 
 use anyhow::{Result, anyhow, bail};

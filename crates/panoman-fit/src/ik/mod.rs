@@ -31,7 +31,7 @@
 //! them — and their `β` derivatives — exactly by multilinear interpolation, adding
 //! `Σ_j f_j X^{(j)}_kb`, `Σ_j f_j Δh_j`, `Σ_j f_j Δt_j` for the face units (`X^{(j)}_kb =
 //! Σ_v a_kv w_vb B_jv`, `B_j` the unit's displacement). The rest frames follow from the
-//! joints (§6.3 of the asset notes, [`panoman_human::rig::rest_frames`]).
+//! joints (docs/design/rig-and-ik.md §2.3, [`panoman_human::rig::rest_frames`]).
 //!
 //! # Objective
 //! `E(p) = Σ_k w_k |K_k(p) − k̂_k|² + λ_θ Σ_c Σ_a (θ_ca / s_ca)² + λ_β Σ_i (β_i − ½)²

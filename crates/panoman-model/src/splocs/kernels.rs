@@ -153,7 +153,7 @@ pub(super) fn penalties(lam: &[f64], c: &[f64], k: usize) -> Vec<f64> {
     out
 }
 
-/// ½‖X‖² − ⟨W, P⟩ + ½⟨WᵀW, G⟩ (the fit term of §3.8 without the residual).
+/// ½‖X‖² − ⟨W, P⟩ + ½⟨WᵀW, G⟩ (the fit term of docs/design/splocs-model.md §3.8 without the residual).
 pub(super) fn fit_from_p(x_sq: f64, w: &[f64], p: &[f64], a0: &[f64], g: &[f64]) -> f64 {
     let wp: f64 = w.iter().zip(p).map(|(a, b)| a * b).sum();
     let ag: f64 = a0.iter().zip(g).map(|(a, b)| a * b).sum();
@@ -223,7 +223,7 @@ pub(super) fn cholesky_inverse(l: &[f64], n: usize) -> Vec<f64> {
     inv
 }
 
-/// Objective of §3.1 without forming the residual (§3.8):
+/// Objective of docs/design/splocs-model.md §3.1 without forming the residual (docs/design/splocs-model.md §3.8):
 /// `½(‖X‖² − 2⟨W, X·Cᵀ⟩ + ⟨WᵀW, C·Cᵀ⟩) + Σ Λ|C|`.
 ///
 /// `x`: N×M f32, `w`: N×K f64, `c` and `lam`: K×M f64, all column-major. Products with X are

@@ -1,29 +1,29 @@
-//! Sparse localized decomposition of per-edge scalar data (algorithms.md §3; PanoMan §4.2,
+//! Sparse localized decomposition of per-edge scalar data (docs/design/splocs-model.md §3; PanoMan §4.2,
 //! SPLOCS of Neumann et al. 2013 rewritten for scalars).
 //!
-//! Data: X ∈ ℝ^{N×M}, one row per sample (RL or RA of the M edges of a part mask, §3.2), f32.
-//! After centring and scaling, X ← s·(X − X̄) with s = 1/std(X) (§3.2), the decomposition solves
-//! (§3.1)
+//! Data: X ∈ ℝ^{N×M}, one row per sample (RL or RA of the M edges of a part mask, docs/design/splocs-model.md §3.2), f32.
+//! After centring and scaling, X ← s·(X − X̄) with s = 1/std(X) (docs/design/splocs-model.md §3.2), the decomposition solves
+//! (docs/design/splocs-model.md §3.1)
 //!
 //! ```text
 //! min_{W,C}  ½‖X − W C‖²_F + Σ_k Σ_e Λ_{k,e} |C_{k,e}|,   W ∈ 𝒲,  C ∈ ℝ^{K×M}
 //! Λ_{k,e} = λ · clamp((d(e, centre_k) − d_min,k) / (d_max,k − d_min,k), 0, 1)
 //! ```
 //!
-//! by alternating a weight update (block coordinate descent with the Gram trick, §3.6) and a
-//! component update (ADMM with a K×K Cholesky, §3.7), from a greedy initialization that never
-//! forms the residual (§3.5), with adaptive support radii (§3.4), a residual-free objective
-//! (§3.8) and re-seeding of dead components (§3.8). The model of a sample is
+//! by alternating a weight update (block coordinate descent with the Gram trick, docs/design/splocs-model.md §3.6) and a
+//! component update (ADMM with a K×K Cholesky, docs/design/splocs-model.md §3.7), from a greedy initialization that never
+//! forms the residual (docs/design/splocs-model.md §3.5), with adaptive support radii (docs/design/splocs-model.md §3.4), a residual-free objective
+//! (docs/design/splocs-model.md §3.8) and re-seeding of dead components (docs/design/splocs-model.md §3.8). The model of a sample is
 //! `x ≈ X̄ + Σ_k β_k C_k` with the training β = rows of W: the `X̄ + M·β` terms of the RLA model
-//! (PanoMan Eq. 2–8 as in algorithms.md §4.1; X̄ is PanoMan's X̄_{YZ}, M = Cᵀ).
+//! (PanoMan Eq. 2–8 as in docs/design/shell-fit.md §2.1; X̄ is PanoMan's X̄_{YZ}, M = Cᵀ).
 //!
-//! Numerics (algorithms.md §0, §6 items 11–12): X stays f32; every product with X is computed
+//! Numerics (docs/design/rla-and-g.md §1, docs/design/splocs-model.md §3.9): X stays f32; every product with X is computed
 //! in f64 on column panels of X converted on the fly (faer GEMM, `Par::rayon(0)`), so Gram
 //! matrices, objectives and the ADMM state are f64-accurate. All reductions use fixed chunks
 //! summed in order, so the output is bit-identical for the same input, independent of the
 //! number of threads. The algorithm has no random choice (argmax ties go to the lowest index).
 //!
-//! The ADMM solve `C = (WᵀW + ρI)⁻¹(F + ρ(Z − U))` (§3.7) uses the f64 Cholesky factor of the
+//! The ADMM solve `C = (WᵀW + ρI)⁻¹(F + ρ(Z − U))` (docs/design/splocs-model.md §3.7) uses the f64 Cholesky factor of the
 //! K×K matrix to form its explicit inverse once per outer iteration, then applies it as a GEMM
 //! against the M columns: cond(WᵀW + ρI) ≤ 1 + λ_max(WᵀW)/ρ is small, so this is as accurate as
 //! two triangular solves and measured 2.4× faster (K = 250, M = 40,000).
@@ -50,11 +50,11 @@ pub use output::{Decomposition, Encoder, IterationRecord, SparseRows};
 pub use solver::{fit, fit_col_major};
 
 /// Columns per task in element-wise passes and reductions over K×M arrays. Fixed, so that
-/// reductions (summed chunk by chunk, in order) do not depend on the thread count (§6 item 15).
+/// reductions (summed chunk by chunk, in order) do not depend on the thread count (docs/design/splocs-model.md §3.9).
 const COL_CHUNK: usize = 256;
 
 /// Distances between the columns of the data (edges of a part), used for the support maps Λ
-/// (§3.1, §3.3, §3.4). [`crate::geodesic::PartGeodesics`] is the mesh implementation.
+/// (docs/design/splocs-model.md §3.1, §3.3, §3.4). [`crate::geodesic::PartGeodesics`] is the mesh implementation.
 pub trait ColumnDistances: Sync {
     /// Per-thread scratch space of a query.
     type Workspace: Send;
@@ -74,7 +74,7 @@ pub trait ColumnDistances: Sync {
     );
 }
 
-/// Normalization of the weight columns W[:,k] after each update (§3.6). Whenever a column is
+/// Normalization of the weight columns W[:,k] after each update (docs/design/splocs-model.md §3.6). Whenever a column is
 /// divided by m, the component row C_k (and the ADMM state) is multiplied by m, so W·C is
 /// unchanged.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -85,70 +85,70 @@ pub enum WeightNorm {
     NonNegMax,
 }
 
-/// Options of [`fit`] (algorithms.md §3.1, §3.4, §3.7, §3.8). Distances are in the units of the
+/// Options of [`fit`] (docs/design/splocs-model.md §3.1, §3.4, §3.7, §3.8). Distances are in the units of the
 /// [`ColumnDistances`] provider (meters on V̄ for [`crate::geodesic::PartGeodesics`]).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct SplocsOptions {
     /// Number of components K (PanoMan: 250 body, 100 face, 50 hand).
     pub n_components: usize,
-    /// Sparsity weight λ of the scaled problem (§3.1; reference default 2).
+    /// Sparsity weight λ of the scaled problem (docs/design/splocs-model.md §3.1; reference default 2).
     pub lambda: f64,
-    /// ADMM penalty ρ (§3.7; reference default 10).
+    /// ADMM penalty ρ (docs/design/splocs-model.md §3.7; reference default 10).
     pub rho: f64,
-    /// ADMM iterations per outer iteration (§3.7; default 10).
+    /// ADMM iterations per outer iteration (docs/design/splocs-model.md §3.7; default 10).
     pub admm_iters: usize,
-    /// Cap on outer iterations (§3.8; 30–50).
+    /// Cap on outer iterations (docs/design/splocs-model.md §3.8; 30–50).
     pub max_outer_iters: usize,
     /// Stop when an outer iteration decreases the objective by less than this, relatively
-    /// (§3.8; 1e−4), and the supports did not change.
+    /// (docs/design/splocs-model.md §3.8; 1e−4), and the supports did not change.
     pub rel_tol: f64,
-    /// Bounds `[lo, hi]` of the support radius r_k = d_min,k (§3.4; body [0.04, 0.30] m,
+    /// Bounds `[lo, hi]` of the support radius r_k = d_min,k (docs/design/splocs-model.md §3.4; body [0.04, 0.30] m,
     /// face and hand [0.005, 0.05] m).
     pub d_min_bounds: [f64; 2],
-    /// d_max,k = ratio · d_min,k (§3.4: 4; the reference code uses 7).
+    /// d_max,k = ratio · d_min,k (docs/design/splocs-model.md §3.4: 4; the reference code uses 7).
     pub d_max_ratio: f64,
-    /// Weight normalization (§3.6); default [`WeightNorm::MaxAbs`].
+    /// Weight normalization (docs/design/splocs-model.md §3.6); default [`WeightNorm::MaxAbs`].
     pub weight_norm: WeightNorm,
     /// Safeguard the weight update (default true): when dividing W[:,k] by m > 1 would raise
     /// the objective (the ℓ1 penalty of C_k grows by (m − 1)·Σ_e Λ|C_k,e|, to first order in
     /// m − 1, while the fit gains only to second order), take the box-projected column
     /// clip(u, −1, 1) instead (projected BCD on W ∈ [−1, 1]^N). This makes every outer
-    /// iteration non-increasing (§3.8). With false, the plain option-(a)/(b) step is always
+    /// iteration non-increasing (docs/design/splocs-model.md §3.8). With false, the plain option-(a)/(b) step is always
     /// taken and the objective can rise slightly from one iteration to the next.
     pub monotone_weights: bool,
-    /// Adapt centres and radii after the C updates (§3.4).
+    /// Adapt centres and radii after the C updates (docs/design/splocs-model.md §3.4).
     pub adapt_supports: bool,
     /// Supports adapt, and dead components are re-seeded, only after outer iterations
     /// `t < adapt_until`; afterwards the problem is fixed and the objective decreases
     /// monotonically to convergence.
     pub adapt_until: usize,
     /// Initial radius at seeding: the smallest r at which the mean |corr| between the seed
-    /// column and the columns at distance ≈ r drops below this (§3.4; 0.5).
+    /// column and the columns at distance ≈ r drops below this (docs/design/splocs-model.md §3.4; 0.5).
     pub init_corr_threshold: f64,
     /// Radius growth factor when more than `far_fraction` of ‖C_k‖² lies beyond
-    /// 0.8·d_max,k (§3.4; 1.25 and 0.05).
+    /// 0.8·d_max,k (docs/design/splocs-model.md §3.4; 1.25 and 0.05).
     pub grow_factor: f64,
     /// See `grow_factor`.
     pub far_fraction: f64,
     /// Radius shrink factor when `near_fraction` of ‖C_k‖² lies within 0.5·d_min,k
-    /// (§3.4; 0.8 and 0.95).
+    /// (docs/design/splocs-model.md §3.4; 0.8 and 0.95).
     pub shrink_factor: f64,
     /// See `shrink_factor`.
     pub near_fraction: f64,
     /// A centre moves to argmax_e |C_k,e| only if that exceeds |C_k| at the old centre by this
-    /// fraction (§3.4; 0.1).
+    /// fraction (docs/design/splocs-model.md §3.4; 0.1).
     pub centre_hysteresis: f64,
-    /// A component with ‖C_k‖² ≤ this (scaled units) is dead (§3.6, §3.8; 1e−12).
+    /// A component with ‖C_k‖² ≤ this (scaled units) is dead (docs/design/splocs-model.md §3.6, §3.8; 1e−12).
     pub dead_tol: f64,
 }
 
-/// Default d_min bounds of the body decomposition, meters (§3.4).
+/// Default d_min bounds of the body decomposition, meters (docs/design/splocs-model.md §3.4).
 pub const BODY_D_MIN_BOUNDS: [f64; 2] = [0.04, 0.30];
-/// Default d_min bounds of the face and hand decompositions, meters (§3.4).
+/// Default d_min bounds of the face and hand decompositions, meters (docs/design/splocs-model.md §3.4).
 pub const SMALL_PART_D_MIN_BOUNDS: [f64; 2] = [0.005, 0.05];
 
 impl SplocsOptions {
-    /// The defaults of §3 (λ = 2, ρ = 10, 10 ADMM iterations, 40 outer iterations, rel_tol
+    /// The defaults of docs/design/splocs-model.md §3 (λ = 2, ρ = 10, 10 ADMM iterations, 40 outer iterations, rel_tol
     /// 1e−4, d_max = 4·d_min, option (b), adaptive supports for 20 iterations) for K components
     /// and the given d_min bounds.
     pub fn new(n_components: usize, d_min_bounds: [f64; 2]) -> SplocsOptions {
@@ -203,7 +203,7 @@ impl SplocsOptions {
     }
 }
 
-/// Soft-thresholding, the proximal map of t·|·| (§3.1):
+/// Soft-thresholding, the proximal map of t·|·| (docs/design/splocs-model.md §3.1):
 /// `argmin_z ½(z − y)² + t|z| = sign(y)·max(|y| − t, 0)` for t ≥ 0.
 #[inline]
 pub fn soft_threshold(y: f64, t: f64) -> f64 {
@@ -216,7 +216,7 @@ pub fn soft_threshold(y: f64, t: f64) -> f64 {
     }
 }
 
-/// Parts of the objective of §3.1 in scaled units: `fit = ½‖X − WC‖²_F`,
+/// Parts of the objective of docs/design/splocs-model.md §3.1 in scaled units: `fit = ½‖X − WC‖²_F`,
 /// `penalty = Σ Λ|C|`, `total = fit + penalty`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ObjectiveParts {
@@ -241,7 +241,7 @@ pub struct WeightStep {
     pub safeguarded: usize,
 }
 
-/// Weight update by block coordinate descent with the Gram trick (§3.6), in place.
+/// Weight update by block coordinate descent with the Gram trick (docs/design/splocs-model.md §3.6), in place.
 ///
 /// Inputs (all column-major f64): W (N×K), P = X·Cᵀ (N×K), G = C·Cᵀ (K×K). For each k:
 /// `u = (P[:,k] − Σ_{j≠k} W[:,j]·G[j,k]) / G_kk` is the exact minimizer of ½‖X − WC‖² over

@@ -3,7 +3,7 @@
 use super::kernels::{cholesky, cholesky_solve, gram_of_rows};
 use super::*;
 
-/// Sparse K×M matrix stored by rows (CSR) with f32 values: the components C (§3.9, "make C
+/// Sparse K×M matrix stored by rows (CSR) with f32 values: the components C (docs/design/splocs-model.md §3.9, "make C
 /// sparse"), keeping only the exact non-zeros left by the soft-thresholding.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SparseRows {
@@ -119,16 +119,16 @@ impl SparseRows {
     }
 }
 
-/// One outer iteration of [`fit`] (objective values in scaled units, §3.8).
+/// One outer iteration of [`fit`] (objective values in scaled units, docs/design/splocs-model.md §3.8).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct IterationRecord {
     /// Outer iteration t (0-based).
     pub iteration: usize,
     /// Objective entering the iteration (current W, C, Λ).
     pub objective_start: f64,
-    /// Objective after the weight update (§3.6).
+    /// Objective after the weight update (docs/design/splocs-model.md §3.6).
     pub objective_after_weights: f64,
-    /// Objective after the component update (§3.7): ≤ the two values above.
+    /// Objective after the component update (docs/design/splocs-model.md §3.7): ≤ the two values above.
     pub objective: f64,
     /// ½‖X − WC‖² after the component update.
     pub fit: f64,
@@ -140,16 +140,16 @@ pub struct IterationRecord {
     pub weight_safeguards: usize,
     /// Whether the ADMM result was rejected because it did not decrease the objective.
     pub admm_rejected: bool,
-    /// Components whose centre or radius changed after this iteration (§3.4).
+    /// Components whose centre or radius changed after this iteration (docs/design/splocs-model.md §3.4).
     pub support_changes: usize,
-    /// Components re-seeded after this iteration (§3.8).
+    /// Components re-seeded after this iteration (docs/design/splocs-model.md §3.8).
     pub reseeded: usize,
     /// Wall time of the iteration, seconds.
     pub seconds: f64,
 }
 
-/// Result of [`fit`]: the model `x ≈ mean + Σ_k β_k·components_k` of one part (§3.1, §3.2;
-/// the `X̄ + M·β` term of algorithms.md §4.1 with X̄ = `mean`, M_L or M_A = `components`ᵀ).
+/// Result of [`fit`]: the model `x ≈ mean + Σ_k β_k·components_k` of one part (docs/design/splocs-model.md §3.1, §3.2;
+/// the `X̄ + M·β` term of docs/design/shell-fit.md §2.1 with X̄ = `mean`, M_L or M_A = `components`ᵀ).
 #[derive(Clone, Debug)]
 pub struct Decomposition {
     /// X̄: the per-column mean of the training data (unscaled).
@@ -157,13 +157,13 @@ pub struct Decomposition {
     /// s = 1/std(X − X̄): the scaling of the problem (λ acts in scaled units). The stored
     /// components are already divided by s.
     pub scale: f64,
-    /// W (N×K): the training coefficients β of each sample (rows), normalized per §3.6.
+    /// W (N×K): the training coefficients β of each sample (rows), normalized per docs/design/splocs-model.md §3.6.
     pub weights: Mat<f32>,
     /// C (K×M) in data units (C_scaled / s), sparse.
     pub components: SparseRows,
-    /// Centre column of each component (§3.4).
+    /// Centre column of each component (docs/design/splocs-model.md §3.4).
     pub centres: Vec<u32>,
-    /// `[d_min, d_max]` of each component's support (§3.4).
+    /// `[d_min, d_max]` of each component's support (docs/design/splocs-model.md §3.4).
     pub radii: Vec<[f64; 2]>,
     /// One record per outer iteration.
     pub history: Vec<IterationRecord>,
@@ -171,7 +171,7 @@ pub struct Decomposition {
     pub explained_variance: f64,
     /// Per component, ‖W[:,k]‖²·‖C_k‖² / ‖X‖² (energy of the component alone).
     pub component_energy: Vec<f64>,
-    /// Seconds spent in the greedy initialization (§3.5).
+    /// Seconds spent in the greedy initialization (docs/design/splocs-model.md §3.5).
     pub init_seconds: f64,
     /// Total seconds of [`fit`].
     pub total_seconds: f64,

@@ -81,7 +81,7 @@ impl<'a, D: ColumnDistances> Solver<'a, D> {
         (fit, fit + self.pen.iter().sum::<f64>())
     }
 
-    /// Residual column energies ‖X_e − W·C_e‖² = ‖X_e‖² − 2F_eᵀC_e + C_eᵀA0C_e (§3.5),
+    /// Residual column energies ‖X_e − W·C_e‖² = ‖X_e‖² − 2F_eᵀC_e + C_eᵀA0C_e (docs/design/splocs-model.md §3.5),
     /// with F = WᵀX and A0 = WᵀW current. Uses `t` as scratch.
     pub(super) fn residual_energies(&mut self) -> Vec<f64> {
         let (k, m) = (self.k, self.m);
@@ -114,7 +114,7 @@ impl<'a, D: ColumnDistances> Solver<'a, D> {
 
     /// Smallest radius r (geometric grid over the d_min bounds, ratio 1.1) at which the mean
     /// |corr| between the seed column and the columns at distance ≈ r drops below the
-    /// threshold (§3.4); `hi` if it never does.
+    /// threshold (docs/design/splocs-model.md §3.4); `hi` if it never does.
     pub(super) fn initial_radius(&self, dist_row: &[f64], corr: &[f64]) -> f64 {
         let [lo, hi] = self.opts.d_min_bounds;
         if hi <= lo {
@@ -144,8 +144,8 @@ impl<'a, D: ColumnDistances> Solver<'a, D> {
         hi
     }
 
-    /// Greedy seeding of component `kk` at the max-residual column (§3.5): w = the residual
-    /// column, normalized (§3.6); c = (wᵀR ⊙ (1 − support)) / (wᵀw). Row kk of W, C, U must
+    /// Greedy seeding of component `kk` at the max-residual column (docs/design/splocs-model.md §3.5): w = the residual
+    /// column, normalized (docs/design/splocs-model.md §3.6); c = (wᵀR ⊙ (1 − support)) / (wᵀw). Row kk of W, C, U must
     /// be zero. Updates `en` (residual column energies) incrementally. False if the residual
     /// is zero.
     pub(super) fn seed(&mut self, kk: usize, en: &mut [f64], ws: &mut D::Workspace) -> bool {
@@ -183,7 +183,7 @@ impl<'a, D: ColumnDistances> Solver<'a, D> {
         xt_vec(&self.x, n, &r, &mut g);
         self.sub_ct_vec(&wr, &mut g);
 
-        // Distances from the seed, initial radius from correlations (§3.4).
+        // Distances from the seed, initial radius from correlations (docs/design/splocs-model.md §3.4).
         let cap = self.dist_cap();
         {
             let row = &mut self.dist[kk * m..(kk + 1) * m];
@@ -275,7 +275,7 @@ impl<'a, D: ColumnDistances> Solver<'a, D> {
             });
     }
 
-    /// Scales row k of C and U by `scale[k]` (after a weight normalization, §3.6).
+    /// Scales row k of C and U by `scale[k]` (after a weight normalization, docs/design/splocs-model.md §3.6).
     pub(super) fn rescale_rows(&mut self, scale: &[f64]) {
         let k = self.k;
         let f = |arr: &mut Vec<f64>| {
@@ -291,7 +291,7 @@ impl<'a, D: ColumnDistances> Solver<'a, D> {
         f(&mut self.u);
     }
 
-    /// Component update by ADMM (§3.7), safeguarded: the result replaces C only if it does not
+    /// Component update by ADMM (docs/design/splocs-model.md §3.7), safeguarded: the result replaces C only if it does not
     /// increase the objective. Requires A0 = WᵀW current; computes F = WᵀX. Returns
     /// (objective, fit, rejected).
     pub(super) fn c_step(&mut self, obj_before: f64) -> Result<(f64, f64, bool)> {
@@ -376,7 +376,7 @@ impl<'a, D: ColumnDistances> Solver<'a, D> {
         }
     }
 
-    /// Adaptive supports (§3.4): radius growth/shrink from the energy distribution of C_k, and
+    /// Adaptive supports (docs/design/splocs-model.md §3.4): radius growth/shrink from the energy distribution of C_k, and
     /// centre moves with hysteresis. Returns the number of components that changed.
     pub(super) fn update_supports(&mut self, ws_pool: &mut Vec<D::Workspace>) -> usize {
         let (m, k) = (self.m, self.k);
@@ -494,7 +494,7 @@ impl<'a, D: ColumnDistances> Solver<'a, D> {
         changes.len()
     }
 
-    /// Re-seeds dead components (‖C_k‖² ≤ dead_tol) at the max-residual column (§3.8).
+    /// Re-seeds dead components (‖C_k‖² ≤ dead_tol) at the max-residual column (docs/design/splocs-model.md §3.8).
     /// Requires F = WᵀX and A0 = WᵀW current. Returns how many were re-seeded.
     pub(super) fn reseed_dead(&mut self, ws: &mut D::Workspace) -> usize {
         let (n, k) = (self.n, self.k);
@@ -525,7 +525,7 @@ impl<'a, D: ColumnDistances> Solver<'a, D> {
     }
 }
 
-/// Sparse localized decomposition of `x` (N×M, rows = samples, columns = part edges), §3.
+/// Sparse localized decomposition of `x` (N×M, rows = samples, columns = part edges), docs/design/splocs-model.md §3.
 /// Copies X; see [`fit_col_major`] to hand over a buffer instead.
 pub fn fit<D: ColumnDistances>(
     x: MatRef<'_, f32>,
@@ -540,14 +540,14 @@ pub fn fit<D: ColumnDistances>(
     fit_col_major(data, n, dists, opts, |_| {})
 }
 
-/// Sparse localized decomposition (§3.1–3.8) of the N×M data given column-major in `x`
+/// Sparse localized decomposition (docs/design/splocs-model.md §3.1–3.8) of the N×M data given column-major in `x`
 /// (`x[j·N + i]` = sample i, column j), consumed to avoid a copy. `progress` is called after
 /// every outer iteration.
 ///
-/// Steps: centre and scale (§3.2); greedy initialization without the residual (§3.5); then
-/// per outer iteration: weight update by BCD with the Gram trick and normalization (§3.6),
-/// component update by ADMM (§3.7), residual-free objective (§3.8), support adaptation (§3.4)
-/// and re-seeding of dead components (§3.8), until the relative decrease is below `rel_tol`
+/// Steps: centre and scale (docs/design/splocs-model.md §3.2); greedy initialization without the residual (docs/design/splocs-model.md §3.5); then
+/// per outer iteration: weight update by BCD with the Gram trick and normalization (docs/design/splocs-model.md §3.6),
+/// component update by ADMM (docs/design/splocs-model.md §3.7), residual-free objective (docs/design/splocs-model.md §3.8), support adaptation (docs/design/splocs-model.md §3.4)
+/// and re-seeding of dead components (docs/design/splocs-model.md §3.8), until the relative decrease is below `rel_tol`
 /// or `max_outer_iters`. Finally C ← C/s, stored sparse.
 ///
 /// Deterministic: no random choice is made (the greedy seeds are argmaxes, ties to the lowest
@@ -590,7 +590,7 @@ pub fn fit_col_major<D: ColumnDistances>(
     }
     let k = opts.n_components;
 
-    // §3.2: centre and scale.
+    // docs/design/splocs-model.md §3.2: centre and scale.
     let mean: Vec<f32> = x
         .par_chunks(n)
         .map(|col| (col.iter().map(|&v| v as f64).sum::<f64>() / n as f64) as f32)
@@ -652,7 +652,7 @@ pub fn fit_col_major<D: ColumnDistances>(
         buf: Vec::new(),
     };
 
-    // §3.5: greedy initialization.
+    // docs/design/splocs-model.md §3.5: greedy initialization.
     let t_init = Instant::now();
     let mut ws = dists.new_workspace();
     let mut en = sv.col_sq.clone();
@@ -672,7 +672,7 @@ pub fn fit_col_major<D: ColumnDistances>(
 
     for it in 0..opts.max_outer_iters {
         let t_it = Instant::now();
-        // §3.6 weight update.
+        // docs/design/splocs-model.md §3.6 weight update.
         let step = update_weights_gram(
             &mut sv.w,
             &mut sv.p,
@@ -689,10 +689,10 @@ pub fn fit_col_major<D: ColumnDistances>(
         }
         sv.recompute_a0();
         let obj_w = sv.objective_from_p().1;
-        // §3.7 component update.
+        // docs/design/splocs-model.md §3.7 component update.
         let (obj, fit_v, rejected) = sv.c_step(obj_w)?;
         let rel = (obj_start - obj) / obj_start.abs().max(f64::MIN_POSITIVE);
-        // §3.4 supports and §3.8 dead components.
+        // docs/design/splocs-model.md §3.4 supports and docs/design/splocs-model.md §3.8 dead components.
         let adapt = it < opts.adapt_until && it + 1 < opts.max_outer_iters;
         let support_changes = if adapt && opts.adapt_supports {
             sv.update_supports(&mut ws_pool)
