@@ -16,8 +16,15 @@ use std::path::PathBuf;
 )]
 pub struct ExportArgs {
     /// One mesh (.obj or .ply) → a static .glb.
-    #[arg(long, conflicts_with_all = ["sequence", "lbs"], required_unless_present_any = ["sequence", "lbs"])]
+    #[arg(long, conflicts_with_all = ["sequence", "lbs", "params"], required_unless_present_any = ["sequence", "lbs", "params"])]
     pub mesh: Option<PathBuf>,
+    /// Model parameters (α, β, placement; e.g. a fit's params.json) posed by `--model` → a
+    /// static .glb.
+    #[arg(long, requires = "model", conflicts_with_all = ["sequence", "lbs"])]
+    pub params: Option<PathBuf>,
+    /// The model for `--params`.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
     /// A folder of per-frame meshes (e.g. `panoman track`'s output), in name order → one
     /// animated .glb (morph targets).
     #[arg(long, conflicts_with = "lbs")]
@@ -53,11 +60,24 @@ pub fn run(a: ExportArgs) -> Result<()> {
         .mesh
         .as_ref()
         .or(a.sequence.as_ref())
+        .or(a.params.as_ref())
         .expect("clap requires one");
-    let seq = match &a.sequence {
-        Some(dir) if !dir.is_dir() => bail!("{}: not a folder", dir.display()),
-        Some(dir) => Sequence::from_dir(dir)?,
-        None => Sequence::from_mesh(input)?,
+    let seq = match (&a.sequence, &a.params, &a.model) {
+        (Some(dir), _, _) if !dir.is_dir() => bail!("{}: not a folder", dir.display()),
+        (Some(dir), _, _) => Sequence::from_dir(dir)?,
+        (None, Some(p), Some(m)) => {
+            let model = panoman::Model::load(m)?;
+            let params = panoman::Params::read(p, model.inner())?;
+            let v = model
+                .pose(&params, panoman::Correction::Apply)
+                .map_err(|e| anyhow::anyhow!("{}", e.in_file(p)))?;
+            Sequence {
+                files: vec![p.clone()],
+                faces: model.faces().to_vec(),
+                frames: vec![v],
+            }
+        }
+        _ => Sequence::from_mesh(input)?,
     };
     let markers = match &a.keypoints {
         Some(k) => Some(Markers::from_keypoints(&[read_keypoints(
