@@ -109,12 +109,12 @@ impl Rig {
 
     /// The IK solver of this rig (precomputations once; reuse it across frames).
     pub fn ik_solver(&self) -> Result<IkSolver> {
-        Ok(IkSolver::new(
+        IkSolver::new(
             self.generator.clone(),
             self.map.clone(),
             self.topology,
             &self.keypoints,
-        )?)
+        )
     }
 }
 
@@ -127,7 +127,7 @@ pub fn ik_fit(ik: &IkSolver, c: &Constraints, cfg: &IkConfig) -> Result<IkResult
         ));
     }
     let targets = IkTargets::from_file(&c.keypoints)?;
-    Ok(ik.solve(&targets, cfg)?)
+    ik.solve(&targets, cfg)
 }
 
 /// Controls of [`ik_icp`].

@@ -869,6 +869,9 @@ fn le_u32s(b: Vec<u8>) -> Vec<u32> {
         .collect()
 }
 
+/// Per tensor name: `(absolute start, (data begin, data end))` in the file.
+type TensorRanges = std::collections::BTreeMap<&'static str, (u64, (usize, usize))>;
+
 /// The byte ranges `(absolute start, data offsets)` of the seven dataset tensors in a
 /// safetensors file whose data section starts at `data0`, checked against the dtypes and
 /// shapes of `n` rows of `n_v` vertices and `p` pose values.
@@ -878,7 +881,7 @@ fn tensor_offsets(
     n: usize,
     n_v: usize,
     p: usize,
-) -> std::result::Result<std::collections::BTreeMap<&'static str, (u64, (usize, usize))>, String> {
+) -> std::result::Result<TensorRanges, String> {
     let expect = [
         ("vertices", safetensors::Dtype::F32, vec![n, n_v, 3]),
         ("theta", safetensors::Dtype::F32, vec![n, p]),
