@@ -1,5 +1,5 @@
 //! The Anny-equivalent generator against the reference outputs of anny 0.6.2
-//! (`shared/fixtures/anny-oracle`, docs/design/assets.md §7): rest mesh, joints, pose deltas from the
+//! (`fixtures/anny-oracle`, docs/design/assets.md §7): rest mesh, joints, pose deltas from the
 //! Euler parameters, FK and LBS to ≤ 1e-9 m on all 13,718 vertices and 163 bones; parameter
 //! errors. The throughput measurement is the example `generator_throughput`.
 
