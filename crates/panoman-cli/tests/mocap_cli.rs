@@ -73,7 +73,112 @@ fn solve_then_export_as_bvh() {
     let b = panoman_mocap::bvh::read_bvh(&bvh).unwrap();
     assert_eq!(b.n_frames(), 8);
     assert_eq!(b.joints.len(), 163);
+    let truth = rig_joints(&m, &out, &b);
+    let ours: Vec<Vec<[f64; 3]>> = (0..b.n_frames()).map(|f| b.joint_positions(f)).collect();
+    let d_ours = max_joint_difference(&truth, &ours);
+    assert!(d_ours < 1e-6, "our reader: max joint difference {d_ours} m");
+    match python_bvh_joints(&bvh, &b) {
+        Some(theirs) => {
+            let d_py = max_joint_difference(&truth, &theirs);
+            assert!(
+                d_py < 1e-6,
+                "PyPI `bvh` reader: max joint difference {d_py} m"
+            );
+        }
+        None => eprintln!(
+            "\n*** SKIPPED the second BVH reader: no Python with the PyPI `bvh` package (scripts/test.sh installs it into target/pyvenv; PANOMAN_PY_TESTS=1 makes this an error) ***\n"
+        ),
+    }
     let _ = std::fs::remove_dir_all(&d);
+}
+
+/// The rig's posed bone heads (m) of the solve's `params_*.json`, per frame, in the BVH's
+/// joint order.
+fn rig_joints(model: &str, solve: &Path, b: &panoman_mocap::bvh::Bvh) -> Vec<Vec<[f64; 3]>> {
+    let model = panoman::Model::load(model).unwrap();
+    let g = model.inner().rig.as_ref().unwrap().generator.clone();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(solve)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with("params_"))
+        })
+        .collect();
+    files.sort();
+    let params: Vec<_> = files.iter().map(|p| g.read_params(p).unwrap()).collect();
+    let identity = g.identity(&params[0].shape).unwrap();
+    params
+        .iter()
+        .map(|p| {
+            let heads = identity.pose(&p.pose).bone_heads;
+            b.joints
+                .iter()
+                .map(|j| heads[g.bone_names().iter().position(|n| *n == j.name).unwrap()])
+                .collect()
+        })
+        .collect()
+}
+
+fn max_joint_difference(a: &[Vec<[f64; 3]>], b: &[Vec<[f64; 3]>]) -> f64 {
+    assert_eq!(a.len(), b.len(), "frame counts");
+    let mut worst = 0.0f64;
+    for (fa, fb) in a.iter().zip(b) {
+        assert_eq!(fa.len(), fb.len(), "joint counts");
+        for (p, q) in fa.iter().zip(fb) {
+            let d = (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt();
+            worst = worst.max(if d.is_finite() { d } else { f64::INFINITY });
+        }
+    }
+    worst
+}
+
+/// Joint positions of `bvh` by `tools/python/bvh_fk.py` (the PyPI `bvh` package as reader),
+/// per frame in the joint order of `b`; `None` when no Python with that package is found
+/// (`$PANOMAN_PYTHON`, else `target/pyvenv/bin/python`), which `PANOMAN_PY_TESTS=1` turns
+/// into a failure.
+fn python_bvh_joints(bvh: &Path, b: &panoman_mocap::bvh::Bvh) -> Option<Vec<Vec<[f64; 3]>>> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let python = std::env::var_os("PANOMAN_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| root.join("target/pyvenv/bin/python"));
+    let required = std::env::var("PANOMAN_PY_TESTS").is_ok_and(|v| v == "1");
+    let has_bvh = std::process::Command::new(&python)
+        .args(["-c", "import bvh"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !has_bvh {
+        assert!(
+            !required,
+            "PANOMAN_PY_TESTS=1 but {} cannot import the `bvh` package",
+            python.display()
+        );
+        return None;
+    }
+    let json = bvh.with_extension("py.json");
+    let o = std::process::Command::new(&python)
+        .arg(root.join("tools/python/bvh_fk.py"))
+        .arg(bvh)
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "bvh_fk.py: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    assert_eq!(v["frames"].as_u64(), Some(b.n_frames() as u64));
+    let joint = |name: &str, f: usize| -> [f64; 3] {
+        let p = &v["joints"][name][f];
+        [0, 1, 2].map(|k| p[k].as_f64().unwrap_or(f64::NAN))
+    };
+    Some(
+        (0..b.n_frames())
+            .map(|f| b.joints.iter().map(|j| joint(&j.name, f)).collect())
+            .collect(),
+    )
 }
 
 #[test]

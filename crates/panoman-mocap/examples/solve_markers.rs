@@ -34,6 +34,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             pose_prior: env("POSE_PRIOR", 1e-6),
             track_iterations: env("ITERS", 8.0) as usize,
             held_out_step: env("STEP", 10.0) as usize,
+            held_out_recalibrate: env("RECAL", 1.0) > 0.0,
+            placement_prior_weight: env("LAMBDA", 1.0),
+            calibration_frames: env("CAL_FRAMES", 12.0) as usize,
+            robust_sigma_m: env("SIGMA", 0.03),
+            track_rounds: env("TRACK_ROUNDS", 2.0) as usize,
+            glitch_m: env("GLITCH", 0.04),
+            warm_fit: panoman_fit::FitOptions {
+                correction: env("CORRECTION", 1.0) > 0.0,
+                temporal_vertex_weight: env("TEMPORAL", 0.01),
+                handle_weight: env("HANDLE", 10.0),
+                ..panoman_fit::fit::warm_fit_options()
+            },
             ..SolveOptions::default()
         },
     };
@@ -51,6 +63,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         out.calibration.mean_marker_shift_mm,
         r.times["tracking_warm_ms_per_frame"]
     );
+    println!("times {:?}", r.times);
     let mut w: Vec<(&String, &f64)> = r
         .per_marker_residual_mm
         .iter()
@@ -62,19 +75,51 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut w: Vec<(&String, &f64)> = h.per_marker.iter().collect();
         w.sort_by(|x, y| y.1.total_cmp(x.1));
         println!(
-            "held-out mean {:.2} mm (inliers {:.2}) over {} frames/fold in {:.1}s; worst {:?}",
+            "held-out mean {:.2} mm (all {:.2}, inliers {:.2}; unobservable {:?}) over {} frames/fold in {:.1}s; worst {:?}",
             h.mean,
+            h.mean_all,
             h.mean_inliers,
+            h.unobservable,
             h.frames,
             h.seconds,
             &w[..5.min(w.len())]
         );
     }
+    limb_lengths(&model, out.calibration.phenotype)?;
+    println!("glitches {:?}", r.glitches);
     if let Ok(p) = std::env::var("REPORT") {
         std::fs::write(p, serde_json::to_vec_pretty(&out.report)?)?;
     }
     if let Some(o) = a.get(5) {
         write_solve(std::path::Path::new(o), &out, model.faces())?;
     }
+    Ok(())
+}
+
+/// Prints the calibrated rig's limb lengths (mm; compare with a VSK's segment lengths).
+fn limb_lengths(model: &panoman::Model, phen: [f64; 6]) -> Result<(), Box<dyn std::error::Error>> {
+    let rig = panoman_fit::Rig::for_model(model.inner(), || {
+        Err(panoman_fit::FitError::Invalid("no rig".into()))
+    })?;
+    let ik = rig.ik_solver()?;
+    let names = rig.generator.bone_names().to_vec();
+    let template = panoman_human::params::ShapeParams::default();
+    let mut st = panoman_fit::ik::IkState::rest(names.len(), &template);
+    st.phenotype = phen;
+    let identity = rig.generator.identity(&ik.shape_params(&st, &template))?;
+    let heads = identity.bone_heads();
+    let h = |n: &str| heads[names.iter().position(|x| x == n).expect("bone")];
+    let d = |a: &str, b: &str| {
+        let (p, q) = (h(a), h(b));
+        1e3 * ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+    };
+    println!(
+        "limb lengths (mm): thigh {:.0} shank {:.0} upper arm {:.0} forearm {:.0} hip width {:.0}",
+        d("upperleg01.L", "lowerleg01.L"),
+        d("lowerleg01.L", "foot.L"),
+        d("upperarm01.L", "lowerarm01.L"),
+        d("lowerarm01.L", "wrist.L"),
+        d("upperleg01.L", "upperleg01.R"),
+    );
     Ok(())
 }

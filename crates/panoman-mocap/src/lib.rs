@@ -18,7 +18,7 @@
 //! * [`marker_map`]: marker name → template surface point + offset (shipped sets
 //!   `data/cmu53.json`, `data/plugin_gait43.json`); [`solve`]: MoSh-style calibration,
 //!   tracking (PanoMan or LBS) and held-out marker error; [`solve_run::solve_capture`] runs it
-//!   from files.
+//!   from files; [`glitch`]: capture glitches found from the markers alone.
 //!
 //! Every error is a [`MocapError`] whose message names the file and what is wrong; no
 //! reader panics on malformed input, and allocations are bounded by the input's size.
@@ -31,6 +31,7 @@ pub mod c3d;
 pub mod csm;
 mod error;
 pub mod fetch;
+pub mod glitch;
 pub mod marker_map;
 pub mod markers;
 pub mod retarget;

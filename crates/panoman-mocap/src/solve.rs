@@ -27,7 +27,7 @@ use std::time::Instant;
 
 use panoman::Method;
 use panoman_fit::ik::{IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget};
-use panoman_fit::{Constraints, FitOptions, Placement, Previous, VertexHandle};
+use panoman_fit::{Constraints, FitOptions, Previous, VertexHandle};
 use panoman_human::params::{GeneratorParams, ShapeParams};
 use panoman_mesh::align::rigid_align;
 use panoman_mesh::geom::{V3, add, dot, matvec, norm, scale, sub};
@@ -65,6 +65,19 @@ pub struct SolveOptions {
     pub held_out_folds: usize,
     /// Every this many frames of the solved range are tracked per fold. Default 10.
     pub held_out_step: usize,
+    /// Each held-out fold is calibrated anew without its markers (true, the protocol) or
+    /// tracked with the full calibration (false: a diagnostic that separates calibration
+    /// from tracking). Default true.
+    pub held_out_recalibrate: bool,
+    /// Weight of a marker's initial place in the calibration's marker step, in
+    /// pseudo-observations (frames). Default 1.
+    pub placement_prior_weight: f64,
+    /// Threshold of [`crate::glitch::find_glitches`] (m): [`crate::solve_run::solve_capture`]
+    /// treats the glitches as missing (0: keeps every observation). Default 0.04.
+    pub glitch_m: f64,
+    /// PanoMan's shell-fit options of a warm-started tracking frame (the first frame uses
+    /// `FitOptions::default()`). Default [`panoman_fit::fit::warm_fit_options`].
+    pub warm_fit: FitOptions,
 }
 
 impl Default for SolveOptions {
@@ -81,6 +94,10 @@ impl Default for SolveOptions {
             pose_prior: 1e-6,
             held_out_folds: 5,
             held_out_step: 10,
+            held_out_recalibrate: true,
+            placement_prior_weight: 1.0,
+            glitch_m: 0.04,
+            warm_fit: panoman_fit::fit::warm_fit_options(),
         }
     }
 }
@@ -124,6 +141,10 @@ pub struct SolvedFrame {
     pub outliers: usize,
     /// Wall time (s).
     pub seconds: f64,
+    /// Wall time per stage (s): `ik`, and for PanoMan the shell fit's stages (`shell_init`
+    /// with the first β-step, `shell_keypoints` with the guidance and the V-step,
+    /// `shell_params` with the last β-step and the placement).
+    pub stage_seconds: Vec<(String, f64)>,
 }
 
 /// Per-frame line of the report.
@@ -146,15 +167,23 @@ pub struct FrameReport {
 /// Held-out marker error.
 #[derive(Clone, Debug, Serialize)]
 pub struct HeldOut {
-    /// Mean over all held-out observations (mm).
+    /// Mean over the held-out observations of the markers that stay observable in their
+    /// fold (mm; see [`HeldOut::unobservable`]): the protocol's figure.
     pub mean: f64,
+    /// Mean over every held-out observation, unobservable markers included (mm).
+    pub mean_all: f64,
+    /// Markers that are unobservable once held out: no other marker of the fold is on their
+    /// rig bone or a bone below it, so the joint that places them is seen by no marker and
+    /// their error measures the pose prior, not the solve (a hand's or toe's only marker).
+    /// Their errors are in `per_marker` and `mean_all`, not in `mean`.
+    pub unobservable: Vec<String>,
     /// Mean per marker (mm).
     pub per_marker: BTreeMap<String, f64>,
-    /// Mean over the held-out observations that the solve with every marker fits within
-    /// `outlier_m` (capture glitches left out; mm). `NaN` when no full solve was given.
+    /// Like `mean`, over the observations that the solve with every marker also fits within
+    /// `outlier_m` (mm). `NaN` when no full solve was given.
     pub mean_inliers: f64,
-    /// Held-out observations (all / inliers).
-    pub observations: [usize; 2],
+    /// Held-out observations (of `mean` / of `mean_inliers` / of `mean_all`).
+    pub observations: [usize; 3],
     /// How it was measured.
     pub method: String,
     /// Folds.
@@ -192,6 +221,9 @@ pub struct SolveReport {
     pub calibration: serde_json::Value,
     /// Times per stage (s; `tracking_warm_ms_per_frame` in ms).
     pub times: BTreeMap<String, f64>,
+    /// Observations treated as missing as capture glitches, per marker (see
+    /// [`crate::glitch`]; only markers with one or more).
+    pub glitches: BTreeMap<String, usize>,
     /// Held-out marker error (when folds > 0).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub held_out_marker_error_mm: Option<HeldOut>,
@@ -550,7 +582,7 @@ impl MarkerSolver {
             if wsum <= 0.0 {
                 continue;
             }
-            let lambda = 1.0;
+            let lambda = o.placement_prior_weight.max(1e-9);
             let q0 = init_rest[i];
             let mut q = scale(add(acc, scale(q0, lambda)), 1.0 / (wsum + lambda));
             let d = sub(q, q0);
@@ -664,6 +696,7 @@ impl MarkerSolver {
                 s.residuals = vec![f64::NAN; obs.len()];
                 s.outliers = 0;
                 s.seconds = t.elapsed().as_secs_f64();
+                s.stage_seconds = Vec::new();
                 out.push(s);
                 continue;
             }
@@ -687,6 +720,7 @@ impl MarkerSolver {
     ) -> Result<(SolvedFrame, Carry)> {
         let o = self.options.clone();
         let map = &cal.map;
+        let t_ik = Instant::now();
         let ik = match carry {
             Some(c) => self.ik_frame(
                 map,
@@ -714,6 +748,7 @@ impl MarkerSolver {
                 )?
             }
         };
+        let mut stage_seconds = vec![("ik".to_string(), t_ik.elapsed().as_secs_f64())];
         let rig_params = ik.result.params.clone();
         let state = ik.result.state.clone();
         if o.method == Method::Lbs {
@@ -728,6 +763,7 @@ impl MarkerSolver {
                 residuals,
                 outliers,
                 seconds: 0.0,
+                stage_seconds,
             };
             let next = Carry {
                 state,
@@ -736,7 +772,8 @@ impl MarkerSolver {
             };
             return Ok((frame, next));
         }
-        let (vertices, params) = self.shell_frame(&ik, obs, cal, active, carry)?;
+        let (vertices, params, stages) = self.shell_frame(&ik, obs, cal, active, carry)?;
+        stage_seconds.extend(stages);
         let residuals = self.residuals(map, obs, active, &vertices);
         let outliers = count_outliers(&residuals, o.outlier_m);
         let next = Carry {
@@ -756,6 +793,7 @@ impl MarkerSolver {
             residuals,
             outliers,
             seconds: 0.0,
+            stage_seconds,
         };
         Ok((frame, next))
     }
@@ -768,7 +806,7 @@ impl MarkerSolver {
         cal: &Calibration,
         active: &[bool],
         carry: Option<&Carry>,
-    ) -> Result<(Vec<V3>, Params)> {
+    ) -> Result<(Vec<V3>, Params, Vec<(String, f64)>)> {
         let faces = self.template.faces.clone();
         let x = &ik.result.posed;
         let normals = vertex_normals(&faces, x, self.template.normal_sign);
@@ -787,11 +825,7 @@ impl MarkerSolver {
         let handles = marker_handles(&faces, &cal.map, x, &targets, &ik.weights);
         let previous = carry.and_then(|c| c.previous.clone());
         let opts = if previous.is_some() {
-            FitOptions {
-                placement: Placement::Propagated,
-                step_iterations: 1,
-                ..FitOptions::default()
-            }
+            self.options.warm_fit.clone()
         } else {
             FitOptions::default()
         };
@@ -811,7 +845,13 @@ impl MarkerSolver {
             .map_err(|e| MocapError::Invalid {
                 what: format!("shell fit: {e}"),
             })?;
-        Ok((fit.vertices, fit.params))
+        let stages = fit
+            .report
+            .stages
+            .iter()
+            .map(|s| (format!("shell_{}", s.name), s.seconds))
+            .collect();
+        Ok((fit.vertices, fit.params, stages))
     }
 }
 
@@ -835,6 +875,33 @@ pub fn mean_max_mm(r: impl IntoIterator<Item = f64>) -> (f64, f64, usize) {
 }
 
 impl MarkerSolver {
+    /// Per marker: whether it is observable by the `active` markers — it is active, or
+    /// another active marker is on its rig bone or on a bone below it.
+    pub fn observable(&self, map: &MarkerMap, active: &[bool]) -> Vec<bool> {
+        let names = self.bone_names();
+        let parents = self.rig.generator.bone_parents();
+        let bone = |i: usize| names.iter().position(|n| *n == map.markers[i].bone);
+        let below = |b: usize, mut c: usize| loop {
+            if c == b {
+                return true;
+            }
+            match parents[c] {
+                Some(p) => c = p,
+                None => return false,
+            }
+        };
+        (0..map.markers.len())
+            .map(|i| {
+                active[i]
+                    || bone(i).is_none_or(|b| {
+                        (0..map.markers.len())
+                            .filter(|&j| j != i && active[j])
+                            .any(|j| bone(j).is_some_and(|c| below(b, c)))
+                    })
+            })
+            .collect()
+    }
+
     /// The held-out marker error (see the module docs) on `frames` (every
     /// `held_out_step`-th is used) with the full calibration `full`; `full_solve` (the
     /// tracking with every marker) marks glitch observations for
@@ -864,9 +931,20 @@ impl MarkerSolver {
             .step_by(self.options.held_out_step.max(1))
             .collect();
         let mut per: Vec<Vec<f64>> = vec![Vec::new(); nm];
+        let mut unobservable = vec![false; nm];
         for fold in 0..k {
             let active: Vec<bool> = (0..nm).map(|i| i % k != fold).collect();
-            let cal = self.calibrate(seq, frames, &full.map, &active)?;
+            for (u, o) in unobservable
+                .iter_mut()
+                .zip(self.observable(&full.map, &active))
+            {
+                *u |= !o;
+            }
+            let cal = if self.options.held_out_recalibrate {
+                self.calibrate(seq, frames, &full.map, &active)?
+            } else {
+                full.clone()
+            };
             let solved = self.track(seq, &sub_frames, &cal, &active)?;
             for s in &solved {
                 let mm = self.model_markers(&full.map, &s.vertices);
@@ -874,9 +952,10 @@ impl MarkerSolver {
                 for i in (0..nm).filter(|&i| !active[i] && finite(&obs[i])) {
                     let e = norm(sub(mm[i], obs[i]));
                     per[i].push(e);
-                    if full_res
-                        .get(&s.frame)
-                        .is_some_and(|r| r[i] <= self.options.outlier_m)
+                    if !unobservable[i]
+                        && full_res
+                            .get(&s.frame)
+                            .is_some_and(|r| r[i] <= self.options.outlier_m)
                     {
                         inliers.push(e);
                     }
@@ -884,6 +963,13 @@ impl MarkerSolver {
             }
         }
         let all: Vec<f64> = per.iter().flatten().copied().collect();
+        let kept: Vec<f64> = per
+            .iter()
+            .zip(&unobservable)
+            .filter(|(_, u)| !**u)
+            .flat_map(|(v, _)| v.iter().copied())
+            .collect();
+        let mean_mm = |v: &[f64]| 1e3 * v.iter().sum::<f64>() / v.len().max(1) as f64;
         let per_marker = full
             .map
             .markers
@@ -893,16 +979,21 @@ impl MarkerSolver {
             .map(|(m, v)| (m.name.clone(), 1e3 * v.iter().sum::<f64>() / v.len() as f64))
             .collect();
         Ok(HeldOut {
-            mean: 1e3 * all.iter().sum::<f64>() / all.len().max(1) as f64,
+            mean: mean_mm(&kept),
+            mean_all: mean_mm(&all),
+            unobservable: (0..nm)
+                .filter(|&i| unobservable[i] && !per[i].is_empty())
+                .map(|i| full.map.markers[i].name.clone())
+                .collect(),
             per_marker,
             mean_inliers: if full_solve.is_some() {
-                1e3 * inliers.iter().sum::<f64>() / inliers.len().max(1) as f64
+                mean_mm(&inliers)
             } else {
                 f64::NAN
             },
-            observations: [all.len(), inliers.len()],
+            observations: [kept.len(), inliers.len(), all.len()],
             method: format!(
-                "{k}-fold over markers (marker i in fold i mod {k}); each fold calibrated and tracked without its markers on every {}-th frame; error = |observed − (surface point + offset·n̂)| on the solved mesh, with the held-out marker's placement from the full calibration (MoSh)",
+                "{k}-fold over markers (marker i in fold i mod {k}); each fold calibrated and tracked without its markers on every {}-th frame; error = |observed − (surface point + offset·n̂)| on the solved mesh, with the held-out marker's placement from the full calibration (MoSh); capture glitches (markers that leave their rigid neighbours) are missing; `mean` leaves out the markers that no other marker of their fold observes (`unobservable`), `mean_all` keeps them",
                 self.options.held_out_step.max(1)
             ),
             folds: k,

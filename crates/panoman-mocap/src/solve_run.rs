@@ -195,7 +195,18 @@ pub fn initial_map(
 /// Reading, map, calibration or tracking errors.
 pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<SolveOutput> {
     let t_setup = Instant::now();
-    let seq = load_capture(&req.markers, req.up)?;
+    let mut seq = load_capture(&req.markers, req.up)?;
+    let glitches: BTreeMap<String, usize> = if req.options.glitch_m > 0.0 {
+        let n = crate::glitch::drop_glitches(&mut seq, req.options.glitch_m);
+        seq.names
+            .iter()
+            .zip(n)
+            .filter(|(_, c)| *c > 0)
+            .map(|(m, c)| (m.clone(), c))
+            .collect()
+    } else {
+        BTreeMap::new()
+    };
     let mut solver = MarkerSolver::new(model, req.options.clone())?;
     let map = initial_map(
         &solver,
@@ -218,8 +229,10 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
     let all = vec![true; seq.n_markers()];
     let cal = solver.calibrate(&seq, &frames, &map, &all)?;
     let t = Instant::now();
+    let cpu0 = process_cpu_seconds();
     let solved = solver.track(&seq, &frames, &cal, &all)?;
     let tracking_s = t.elapsed().as_secs_f64();
+    let tracking_cpu_s = process_cpu_seconds().zip(cpu0).map(|(b, a)| b - a);
     let held = if req.options.held_out_folds > 0 {
         Some(solver.held_out(&seq, &frames, &cal, Some(&solved))?)
     } else {
@@ -251,6 +264,19 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
         "tracking_warm_ms_per_frame".to_string(),
         1e3 * warm.iter().sum::<f64>() / warm.len().max(1) as f64,
     );
+    for s in solved.iter().skip(1) {
+        for (name, sec) in &s.stage_seconds {
+            *times
+                .entry(format!("tracking_warm_{name}_ms_per_frame"))
+                .or_insert(0.0) += 1e3 * sec / warm.len().max(1) as f64;
+        }
+    }
+    if let Some(c) = tracking_cpu_s {
+        times.insert(
+            "tracking_cpu_ms_per_frame".to_string(),
+            1e3 * c / solved.len().max(1) as f64,
+        );
+    }
     if let Some(h) = &held {
         times.insert("held_out_s".to_string(), h.seconds);
     }
@@ -282,6 +308,7 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
             "phenotype": cal.phenotype,
         }),
         times,
+        glitches,
         held_out_marker_error_mm: held,
     };
     Ok(SolveOutput {
@@ -290,6 +317,18 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
         frames: solved,
         bone_names: solver.bone_names().to_vec(),
     })
+}
+
+/// CPU time of this process, all threads, user + system (s; Linux `/proc/self/stat`, in
+/// its 10 ms ticks); `None` elsewhere. On a shared machine it is the load-independent
+/// counterpart of the wall times.
+pub fn process_cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which is in parentheses and may contain spaces).
+    let rest = &s[s.rfind(')')? + 1..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
 }
 
 fn json_bytes(v: &impl serde::Serialize) -> Vec<u8> {

@@ -91,6 +91,20 @@ fn lbs_solves_the_c3d_excerpt_with_held_out_error() {
     assert!(h.per_marker.len() >= 50);
     assert!(h.method.contains("5-fold"));
     assert!(h.mean_inliers.is_finite() && h.observations[1] <= h.observations[0]);
+    // The hands' and toes' markers are alone on their bones: unobservable once held out,
+    // in `mean_all` but not in `mean`; the torso's are observable.
+    assert!(h.observations[0] < h.observations[2] && h.mean_all.is_finite());
+    for name in ["LIHAND", "ROHAND", "LTOE"] {
+        assert!(
+            h.unobservable.iter().any(|u| u == name),
+            "{name}: {:?}",
+            h.unobservable
+        );
+    }
+    for name in ["STRN", "LFHD", "LKNE", "LELB"] {
+        assert!(!h.unobservable.iter().any(|u| u == name), "{name}");
+    }
+    assert!(r.times.contains_key("tracking_warm_ik_ms_per_frame"));
     let dir = tmp("lbs");
     write_solve(&dir, &out, m.faces()).expect("written");
     let rep: serde_json::Value =
@@ -138,6 +152,10 @@ fn panoman_solves_the_csm_excerpt() {
     assert!(mean < 12.0, "{mean}");
     let h = r.held_out_marker_error_mm.as_ref().expect("held out");
     assert!(h.mean.is_finite() && h.folds == 3);
+    for stage in ["ik", "shell_init", "shell_keypoints", "shell_params"] {
+        let key = format!("tracking_warm_{stage}_ms_per_frame");
+        assert!(r.times.contains_key(&key), "{key}: {:?}", r.times.keys());
+    }
 }
 
 #[test]

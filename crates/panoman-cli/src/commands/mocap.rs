@@ -93,9 +93,16 @@ pub struct SolveArgs {
     /// Every this many solved frames are tracked per held-out fold.
     #[arg(long, default_value_t = 10)]
     pub held_out_step: usize,
-    /// Calibration frames (spread over the solved range).
-    #[arg(long, default_value_t = 12)]
-    pub calibration_frames: usize,
+    /// Calibration frames (spread over the solved range; default: `SolveOptions`).
+    #[arg(long)]
+    pub calibration_frames: Option<usize>,
+    /// Pose / marker-placement rounds of the calibration (default: `SolveOptions`).
+    #[arg(long)]
+    pub calibration_rounds: Option<usize>,
+    /// Capture-glitch threshold in metres (markers that leave their rigid neighbours by
+    /// more are treated as missing; 0 keeps every observation; default: `SolveOptions`).
+    #[arg(long)]
+    pub glitch_m: Option<f64>,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -182,6 +189,7 @@ fn run_export(a: ExportArgs) -> Result<()> {
 
 fn run_solve(a: SolveArgs) -> Result<()> {
     let model = panoman::Model::load(&a.model)?;
+    let d = SolveOptions::default();
     let req = SolveRequest {
         markers: a.markers.clone(),
         vsk: a.vsk.clone(),
@@ -198,8 +206,10 @@ fn run_solve(a: SolveArgs) -> Result<()> {
             },
             held_out_folds: a.folds,
             held_out_step: a.held_out_step.max(1),
-            calibration_frames: a.calibration_frames.max(1),
-            ..SolveOptions::default()
+            calibration_frames: a.calibration_frames.unwrap_or(d.calibration_frames).max(1),
+            calibration_rounds: a.calibration_rounds.unwrap_or(d.calibration_rounds).max(1),
+            glitch_m: a.glitch_m.unwrap_or(d.glitch_m).max(0.0),
+            ..d
         },
     };
     let out = solve_capture(&model, &req)?;
@@ -215,7 +225,12 @@ fn run_solve(a: SolveArgs) -> Result<()> {
         r.times["tracking_warm_ms_per_frame"]
     );
     if let Some(h) = &r.held_out_marker_error_mm {
-        println!("held-out marker error: mean {:.2} mm", h.mean);
+        println!(
+            "held-out marker error: mean {:.2} mm (all markers {:.2} mm; unobservable once held out: {})",
+            h.mean,
+            h.mean_all,
+            h.unobservable.join(" ")
+        );
     }
     println!("wrote {}", a.out.display());
     Ok(())

@@ -1,0 +1,123 @@
+//! Capture glitches found without a model: an observation is a glitch when its distances to
+//! the markers that move most rigidly with it disagree with their usual values.
+//!
+//! For each marker `i`, its rigid neighbours are the [`NEIGHBOURS`] markers `j` (within
+//! [`NEIGHBOUR_RANGE_M`] of it) whose distance `d_ij(f)` varies least over the capture (the
+//! median absolute deviation from its median `m_ij`, on every [`SAMPLE_STEP`]-th frame). In
+//! frame `f`, `i` is a glitch when at least two of its neighbours are observed and the median
+//! over them of `|d_ij(f) − m_ij| − min(3·MAD_ij, 1 cm)` exceeds the threshold: a
+//! mislabelled, drifting or ghost marker moves
+//! away from all its neighbours at once, while one glitched neighbour (one term of the
+//! median) does not flag `i`; a marker whose neighbours move relative to it (a hand's only
+//! marker) has a larger MAD, so its usual motion is not flagged. The cap keeps a marker that
+//! is wrong for a large part of the capture (whose MAD the glitch itself inflates) flagged.
+//! Each median needs more than half of the samples right.
+use crate::markers::MarkerSequence;
+
+/// Rigid neighbours per marker.
+pub const NEIGHBOURS: usize = 3;
+/// Only markers whose median distance is below this are neighbours (m).
+pub const NEIGHBOUR_RANGE_M: f64 = 0.5;
+/// Largest tolerance a neighbour's MAD adds (m).
+pub const MAD_CAP_M: f64 = 0.01;
+/// Frame step of the neighbour statistics.
+pub const SAMPLE_STEP: usize = 5;
+
+fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+fn observed(p: &[f64; 3]) -> bool {
+    p.iter().all(|c| c.is_finite())
+}
+
+/// Per marker: its rigid neighbours `(j, m_ij, MAD_ij)` (see the module docs; metres).
+pub fn rigid_neighbours(seq: &MarkerSequence) -> Vec<Vec<(usize, f64, f64)>> {
+    let nm = seq.n_markers();
+    let frames: Vec<usize> = (0..seq.n_frames()).step_by(SAMPLE_STEP).collect();
+    let mut stats = vec![vec![(f64::INFINITY, f64::NAN); nm]; nm];
+    for i in 0..nm {
+        for j in i + 1..nm {
+            let mut d: Vec<f64> = frames
+                .iter()
+                .filter_map(|&f| {
+                    let x = seq.frame(f);
+                    (observed(&x[i]) && observed(&x[j])).then(|| dist(&x[i], &x[j]))
+                })
+                .collect();
+            if d.len() < 3 {
+                continue;
+            }
+            let m = median(&mut d);
+            let mut dev: Vec<f64> = d.iter().map(|x| (x - m).abs()).collect();
+            let mad = median(&mut dev);
+            if m < NEIGHBOUR_RANGE_M {
+                stats[i][j] = (mad, m);
+                stats[j][i] = (mad, m);
+            }
+        }
+    }
+    stats
+        .iter()
+        .map(|row| {
+            let mut c: Vec<(usize, f64, f64)> = row
+                .iter()
+                .enumerate()
+                .filter(|(_, s)| s.0.is_finite())
+                .map(|(j, s)| (j, s.0, s.1))
+                .collect();
+            c.sort_by(|a, b| a.1.total_cmp(&b.1));
+            c.iter()
+                .take(NEIGHBOURS)
+                .map(|&(j, mad, m)| (j, m, mad))
+                .collect()
+        })
+        .collect()
+}
+
+/// Glitch flags of every observation, frame-major like [`MarkerSequence::positions`]
+/// (`false` for missing ones); `threshold_m` as in the module docs.
+pub fn find_glitches(seq: &MarkerSequence, threshold_m: f64) -> Vec<bool> {
+    let nm = seq.n_markers();
+    let nb = rigid_neighbours(seq);
+    let mut flags = vec![false; seq.positions.len()];
+    for f in 0..seq.n_frames() {
+        let x = seq.frame(f);
+        for i in (0..nm).filter(|&i| observed(&x[i])) {
+            let mut dev: Vec<f64> = nb[i]
+                .iter()
+                .filter(|(j, _, _)| observed(&x[*j]))
+                .map(|&(j, m, mad)| (dist(&x[i], &x[j]) - m).abs() - (3.0 * mad).min(MAD_CAP_M))
+                .collect();
+            if dev.len() >= 2 && median(&mut dev) > threshold_m {
+                flags[f * nm + i] = true;
+            }
+        }
+    }
+    flags
+}
+
+/// Marks the glitches of `seq` (see [`find_glitches`]) as missing; returns the count per
+/// marker.
+pub fn drop_glitches(seq: &mut MarkerSequence, threshold_m: f64) -> Vec<usize> {
+    let nm = seq.n_markers();
+    let flags = find_glitches(seq, threshold_m);
+    let mut count = vec![0; nm];
+    for (k, _) in flags.iter().enumerate().filter(|(_, g)| **g) {
+        seq.positions[k] = [f64::NAN; 3];
+        count[k % nm] += 1;
+    }
+    count
+}
