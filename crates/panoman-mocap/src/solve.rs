@@ -19,9 +19,13 @@
 //!   the barycentric coordinates, so that the triangle's marker point lands on its target),
 //!   α fixed, the previous frame's fit as temporal term ([`panoman_fit::Previous`]).
 //! * **Held-out marker error** ([`MarkerSolver::held_out`]): k folds over the markers; each
-//!   fold is calibrated and tracked without its markers, on every `held_out_step`-th frame;
-//!   a left-out marker's error is the distance of its observation from its surface point +
-//!   offset **of the full calibration** (the one that saw it, as in MoSh) on the solved mesh.
+//!   fold is tracked without its markers on every `held_out_step`-th frame (the calibration
+//!   frames left out), with the full calibration (MoSh: shape and placement are calibrated
+//!   once with every marker) or, with `held_out_recalibrate`, a calibration of its own
+//!   without them; a left-out marker's error is the distance of its observation from its
+//!   surface point + offset **of the full calibration** on the solved mesh. `mean` counts
+//!   the markers that stay observable in their fold ([`MarkerSolver::observable`]),
+//!   `mean_all` every one; capture glitches ([`crate::glitch`]) are missing observations.
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -45,11 +49,12 @@ use crate::markers::MarkerSequence;
 pub struct SolveOptions {
     /// PanoMan or the LBS rig.
     pub method: Method,
-    /// Frames of the calibration (spread over the capture). Default 12.
+    /// Frames of the calibration (spread over the capture). Default 24.
     pub calibration_frames: usize,
-    /// Pose / marker-placement alternations. Default 4.
+    /// Pose / marker-placement alternations. Default 8.
     pub calibration_rounds: usize,
-    /// Largest move of a marker's surface point from its initial place (m). Default 0.06.
+    /// Largest move of a marker's surface point from its initial place (m). Default 0.12 (the
+    /// shipped rules place some markers, e.g. `cmu53`'s back-head ones, 5–10 cm off).
     pub marker_prior_m: f64,
     /// σ of the Geman–McClure weights (m). Default 0.03.
     pub robust_sigma_m: f64,
@@ -65,9 +70,11 @@ pub struct SolveOptions {
     pub held_out_folds: usize,
     /// Every this many frames of the solved range are tracked per fold. Default 10.
     pub held_out_step: usize,
-    /// Each held-out fold is calibrated anew without its markers (true, the protocol) or
-    /// tracked with the full calibration (false: a diagnostic that separates calibration
-    /// from tracking). Default true.
+    /// Each held-out fold is calibrated anew without its markers (true: the stricter
+    /// protocol, which also measures how consistently the calibration converges) or tracked
+    /// with the full calibration (false: MoSh's protocol — shape and marker placement are
+    /// calibrated once with every marker, the markers are held out of the per-frame solve).
+    /// Default false.
     pub held_out_recalibrate: bool,
     /// Weight of a marker's initial place in the calibration's marker step, in
     /// pseudo-observations (frames). Default 1.
@@ -84,9 +91,9 @@ impl Default for SolveOptions {
     fn default() -> Self {
         SolveOptions {
             method: Method::PanoMan,
-            calibration_frames: 12,
-            calibration_rounds: 4,
-            marker_prior_m: 0.06,
+            calibration_frames: 24,
+            calibration_rounds: 8,
+            marker_prior_m: 0.12,
             robust_sigma_m: 0.03,
             outlier_m: 0.05,
             track_iterations: 8,
@@ -94,7 +101,7 @@ impl Default for SolveOptions {
             pose_prior: 1e-6,
             held_out_folds: 5,
             held_out_step: 10,
-            held_out_recalibrate: true,
+            held_out_recalibrate: false,
             placement_prior_weight: 1.0,
             glitch_m: 0.04,
             warm_fit: panoman_fit::fit::warm_fit_options(),
@@ -925,11 +932,21 @@ impl MarkerSolver {
         let t0 = Instant::now();
         let k = self.options.held_out_folds.max(2);
         let nm = full.map.markers.len();
-        let sub_frames: Vec<usize> = frames
+        // The calibration frames (where the full calibration saw every marker) are not
+        // evaluated, unless they are all there is (a clip of a few frames).
+        let stepped: Vec<usize> = frames
             .iter()
             .copied()
             .step_by(self.options.held_out_step.max(1))
             .collect();
+        let mut sub_frames: Vec<usize> = stepped
+            .iter()
+            .copied()
+            .filter(|f| !full.frames.contains(f))
+            .collect();
+        if sub_frames.is_empty() {
+            sub_frames = stepped;
+        }
         let mut per: Vec<Vec<f64>> = vec![Vec::new(); nm];
         let mut unobservable = vec![false; nm];
         for fold in 0..k {
@@ -969,7 +986,13 @@ impl MarkerSolver {
             .filter(|(_, u)| !**u)
             .flat_map(|(v, _)| v.iter().copied())
             .collect();
-        let mean_mm = |v: &[f64]| 1e3 * v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let mean_mm = |v: &[f64]| {
+            if v.is_empty() {
+                f64::NAN
+            } else {
+                1e3 * v.iter().sum::<f64>() / v.len() as f64
+            }
+        };
         let per_marker = full
             .map
             .markers
@@ -993,7 +1016,12 @@ impl MarkerSolver {
             },
             observations: [kept.len(), inliers.len(), all.len()],
             method: format!(
-                "{k}-fold over markers (marker i in fold i mod {k}); each fold calibrated and tracked without its markers on every {}-th frame; error = |observed − (surface point + offset·n̂)| on the solved mesh, with the held-out marker's placement from the full calibration (MoSh); capture glitches (markers that leave their rigid neighbours) are missing; `mean` leaves out the markers that no other marker of their fold observes (`unobservable`), `mean_all` keeps them",
+                "{k}-fold over markers (marker i in fold i mod {k}); {}; each fold tracked without its markers on every {}-th frame (calibration frames left out); error = |observed − (surface point + offset·n̂)| on the solved mesh, with the held-out marker's placement from the full calibration (MoSh); capture glitches (markers that leave their rigid neighbours) are missing; `mean` leaves out the markers that no other marker of their fold observes (`unobservable`), `mean_all` keeps them",
+                if self.options.held_out_recalibrate {
+                    "each fold calibrated anew without its markers"
+                } else {
+                    "shape and placement calibrated once with every marker (MoSh)"
+                },
                 self.options.held_out_step.max(1)
             ),
             folds: k,

@@ -103,6 +103,11 @@ pub struct SolveArgs {
     /// more are treated as missing; 0 keeps every observation; default: `SolveOptions`).
     #[arg(long)]
     pub glitch_m: Option<f64>,
+    /// Calibrate each held-out fold anew without its markers (stricter than MoSh's
+    /// protocol, which calibrates once with every marker and holds markers out of the
+    /// per-frame solve: the default).
+    #[arg(long)]
+    pub held_out_recalibrate: bool,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -209,6 +214,7 @@ fn run_solve(a: SolveArgs) -> Result<()> {
             calibration_frames: a.calibration_frames.unwrap_or(d.calibration_frames).max(1),
             calibration_rounds: a.calibration_rounds.unwrap_or(d.calibration_rounds).max(1),
             glitch_m: a.glitch_m.unwrap_or(d.glitch_m).max(0.0),
+            held_out_recalibrate: a.held_out_recalibrate,
             ..d
         },
     };
