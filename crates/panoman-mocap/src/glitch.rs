@@ -1,10 +1,12 @@
 //! Capture glitches found without a model: an observation is a glitch when its distances to
 //! the markers that move most rigidly with it disagree with their usual values.
 //!
-//! For each marker `i`, its rigid neighbours are the [`NEIGHBOURS`] markers `j` (within
+//! For each marker `i`, its candidate neighbours are the [`CANDIDATES`] markers `j` (within
 //! [`NEIGHBOUR_RANGE_M`] of it) whose distance `d_ij(f)` varies least over the capture (the
-//! median absolute deviation from its median `m_ij`, on every [`SAMPLE_STEP`]-th frame). In
-//! frame `f`, `i` is a glitch when at least two of its neighbours are observed and the median
+//! median absolute deviation from its median `m_ij`, on every [`SAMPLE_STEP`]-th frame); in
+//! frame `f` its rigid neighbours are the first [`NEIGHBOURS`] of them that are observed (a
+//! foot whose other markers drop out is judged by the ankle and shank). In frame `f`, `i` is
+//! a glitch when at least two of its neighbours are observed and the median
 //! over them of `|d_ij(f) − m_ij| − min(3·MAD_ij, 1 cm)` exceeds the threshold: a
 //! mislabelled, drifting or ghost marker moves
 //! away from all its neighbours at once, while one glitched neighbour (one term of the
@@ -14,8 +16,10 @@
 //! Each median needs more than half of the samples right.
 use crate::markers::MarkerSequence;
 
-/// Rigid neighbours per marker.
+/// Rigid neighbours per marker and frame.
 pub const NEIGHBOURS: usize = 3;
+/// Candidate neighbours per marker, most rigid first.
+pub const CANDIDATES: usize = 8;
 /// Only markers whose median distance is below this are neighbours (m).
 pub const NEIGHBOUR_RANGE_M: f64 = 0.5;
 /// Largest tolerance a neighbour's MAD adds (m).
@@ -43,7 +47,8 @@ fn observed(p: &[f64; 3]) -> bool {
     p.iter().all(|c| c.is_finite())
 }
 
-/// Per marker: its rigid neighbours `(j, m_ij, MAD_ij)` (see the module docs; metres).
+/// Per marker: its candidate neighbours `(j, m_ij, MAD_ij)`, most rigid first (see the
+/// module docs; metres).
 pub fn rigid_neighbours(seq: &MarkerSequence) -> Vec<Vec<(usize, f64, f64)>> {
     let nm = seq.n_markers();
     let frames: Vec<usize> = (0..seq.n_frames()).step_by(SAMPLE_STEP).collect();
@@ -80,7 +85,7 @@ pub fn rigid_neighbours(seq: &MarkerSequence) -> Vec<Vec<(usize, f64, f64)>> {
                 .collect();
             c.sort_by(|a, b| a.1.total_cmp(&b.1));
             c.iter()
-                .take(NEIGHBOURS)
+                .take(CANDIDATES)
                 .map(|&(j, mad, m)| (j, m, mad))
                 .collect()
         })
@@ -99,6 +104,7 @@ pub fn find_glitches(seq: &MarkerSequence, threshold_m: f64) -> Vec<bool> {
             let mut dev: Vec<f64> = nb[i]
                 .iter()
                 .filter(|(j, _, _)| observed(&x[*j]))
+                .take(NEIGHBOURS)
                 .map(|&(j, m, mad)| (dist(&x[i], &x[j]) - m).abs() - (3.0 * mad).min(MAD_CAP_M))
                 .collect();
             if dev.len() >= 2 && median(&mut dev) > threshold_m {

@@ -239,6 +239,9 @@ pub struct SolveReport {
 /// Observed positions of one frame in the map's marker order (NaN = missing).
 type Obs<'a> = &'a [V3];
 
+/// Wall time per named stage (s).
+type StageTimes = Vec<(String, f64)>;
+
 fn finite(p: &V3) -> bool {
     p.iter().all(|c| c.is_finite())
 }
@@ -813,7 +816,7 @@ impl MarkerSolver {
         cal: &Calibration,
         active: &[bool],
         carry: Option<&Carry>,
-    ) -> Result<(Vec<V3>, Params, Vec<(String, f64)>)> {
+    ) -> Result<(Vec<V3>, Params, StageTimes)> {
         let faces = self.template.faces.clone();
         let x = &ik.result.posed;
         let normals = vertex_normals(&faces, x, self.template.normal_sign);
