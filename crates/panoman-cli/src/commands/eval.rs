@@ -322,7 +322,11 @@ fn stress_renders(dir: &Path, o: &EvalOutput) -> Result<()> {
             (mesh(&t.panoman), Some(colors(&t.panoman))),
             (mesh(&t.lbs), Some(colors(&t.lbs))),
         ];
-        save_render(&dir.join("stress").join(format!("{name}.png")), &parts, View::Front)?;
+        save_render(
+            &dir.join("stress").join(format!("{name}.png")),
+            &parts,
+            View::Front,
+        )?;
         if *name == o.summary.stress.worst_case {
             save_render(&dir.join("stress_worst.png"), &parts, View::Front)?;
         }

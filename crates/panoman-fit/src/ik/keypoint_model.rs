@@ -208,6 +208,19 @@ pub(super) struct Posable {
     /// Per axis `1/s²` with `s = max(|lo|, |hi|)` of the range (0 for an empty range): the
     /// prior measures each angle against the largest angle its range allows.
     pub(super) prior: [f64; 3],
+    /// The y (twist) axis's range and prior factor under [`super::IkConfig::wide_twists`]
+    /// ([`ik_twist`]); `None` for bones without one.
+    pub(super) wide_twist: Option<([f64; 2], f64)>,
+}
+
+impl Posable {
+    /// Range and prior factor of `axis` (the wide twist when `wide` and the bone has one).
+    pub(super) fn axis(&self, axis: usize, wide: bool) -> ([f64; 2], f64) {
+        match self.wide_twist {
+            Some(w) if wide && axis == 1 => w,
+            _ => (self.range[axis], self.prior[axis]),
+        }
+    }
 }
 
 /// Rest-shape quantities of one `(β, f)`.
@@ -601,8 +614,28 @@ pub(super) fn unit_joint_moves(
         .collect()
 }
 
+/// The IK's wide twist range and prior scale (degrees) of the arm's `*02` twist bones, used
+/// under [`super::IkConfig::wide_twists`] instead of the sampler's ±30° ([`panoman_human::sampling::TWIST_LIMIT_DEG`], chosen for the LBS
+/// skin's collapse, not for anatomy): a forearm rolls (pronation/supination) about ±90° and
+/// the keypoints of a large twist must be reachable, so the IK allows ±180° on both arm twist
+/// bones; the prior scale is 90° on the forearm and the sampler's 30° on the upper arm, so
+/// that a roll the keypoints cannot place (a straight arm) goes mostly to the forearm, where
+/// anatomy puts it (the prior splits a roll in proportion to the squared scales). `None` for
+/// other bones (legs keep the sampler's ranges).
+pub fn ik_twist(bone: &str) -> Option<(f64, f64)> {
+    let base = bone
+        .strip_suffix(".L")
+        .or_else(|| bone.strip_suffix(".R"))
+        .unwrap_or(bone);
+    match base {
+        "lowerarm02" => Some((180.0, 90.0)),
+        "upperarm02" => Some((180.0, 30.0)),
+        _ => None,
+    }
+}
+
 /// The posable bones of the sampler in `rig`, with their ranges in radians and prior
-/// factors.
+/// factors (and the arm twists' wide ones, [`ik_twist`]).
 ///
 /// # Errors
 /// [`FitError::Invalid`] if the rig lacks a posable bone.
@@ -620,11 +653,18 @@ pub(super) fn posable_of(rig: &panoman_human::rig::Rig) -> Result<Vec<Posable>> 
                 let s = lo.abs().max(hi.abs());
                 if lo < hi { 1.0 / (s * s) } else { 0.0 }
             });
+            let wide_twist = ik_twist(name).map(|(limit, scale)| {
+                (
+                    [-limit.to_radians(), limit.to_radians()],
+                    1.0 / scale.to_radians().powi(2),
+                )
+            });
             Ok(Posable {
                 rig: c,
                 slot,
                 range,
                 prior,
+                wide_twist,
             })
         })
         .collect::<Result<Vec<_>>>()

@@ -25,7 +25,7 @@ use panoman_human::sampling::{
 use panoman_mesh::geom::{V3, add, dot, norm, scale, sub};
 use rand_chacha::rand_core::RngCore;
 
-use super::metrics::{part_errors, PartErrors};
+use super::metrics::{PartErrors, part_errors};
 use super::summary::{PerMethod, StressCase, StressSummary, StressTwist};
 use super::{Bench, EvalPreset, EvalProgress, MeshTriple};
 use crate::error::{Error, Result};
@@ -223,7 +223,11 @@ fn place_hand(
         d(k[knuckle], targets.0) + d(k[wrist], targets.1)
     };
     let mut best = (f64::INFINITY, *theta);
-    for start in [[0.0, 0.0, 90.0, 90.0], [90.0, 0.0, 90.0, 120.0], [60.0, 0.0, 0.0, 140.0]] {
+    for start in [
+        [0.0, 0.0, 90.0, 90.0],
+        [90.0, 0.0, 90.0, 120.0],
+        [60.0, 0.0, 0.0, 140.0],
+    ] {
         let mut th = *theta;
         for (&(s, a), &v) in vars.iter().zip(&start) {
             th.deg[s][a] = v;
@@ -320,12 +324,7 @@ fn mean_over(x: &[V3], truth: &[V3], vs: &[u32]) -> f64 {
 }
 
 /// The twist measures of a twist case (see the module docs).
-fn twist_measures(
-    b: &Bench,
-    angle: f64,
-    rest: &[V3],
-    meshes: &MeshTriple,
-) -> Result<StressTwist> {
+fn twist_measures(b: &Bench, angle: f64, rest: &[V3], meshes: &MeshTriple) -> Result<StressTwist> {
     let kp = &b.model.inner().keypoints;
     let names = &kp.names;
     let row = |n: &str| {

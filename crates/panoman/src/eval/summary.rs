@@ -74,11 +74,18 @@ pub struct StressSummary {
 impl StressSummary {
     /// The summary of `cases`.
     pub fn of(cases: Vec<StressCase>) -> StressSummary {
-        let (l, p): (Vec<PartErrors>, Vec<PartErrors>) =
-            cases.iter().map(|c| (c.errors.lbs, c.errors.panoman)).unzip();
+        let (l, p): (Vec<PartErrors>, Vec<PartErrors>) = cases
+            .iter()
+            .map(|c| (c.errors.lbs, c.errors.panoman))
+            .unzip();
         let worst_case = cases
             .iter()
-            .max_by(|a, b| a.errors.panoman.all_mean.total_cmp(&b.errors.panoman.all_mean))
+            .max_by(|a, b| {
+                a.errors
+                    .panoman
+                    .all_mean
+                    .total_cmp(&b.errors.panoman.all_mean)
+            })
             .map(|c| c.name.clone())
             .unwrap_or_default();
         let count = |f: &dyn Fn(&StressCase) -> bool| cases.iter().filter(|c| f(c)).count();
