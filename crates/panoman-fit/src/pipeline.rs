@@ -128,40 +128,40 @@ pub fn ik_fit(ik: &IkSolver, c: &Constraints, cfg: &IkConfig) -> Result<IkResult
     }
     let targets = IkTargets::from_file(&c.keypoints)?;
     let r = ik.solve(&targets, cfg)?;
-    twist_continuation(ik, &targets, cfg, r)
+    wide_continuation(ik, &targets, cfg, r)
 }
 
-/// Mean hand-keypoint residual (mm) above which [`ik_fit`] tries the wide arm twists.
-pub const TWIST_RETRY_MM: f64 = 1.0;
+/// Mean keypoint residual of a group (mm) above which [`ik_fit`] tries the wide ranges.
+pub const WIDE_RETRY_MM: f64 = 1.0;
 
-/// The relative drop of the mean keypoint residual the wide-twist continuation must reach to
+/// The relative drop of the mean keypoint residual the wide-range continuation must reach to
 /// be kept (against the bounded solve's).
-pub const TWIST_RETRY_GAIN: f64 = 0.25;
+pub const WIDE_RETRY_GAIN: f64 = 0.25;
 
-/// Twist continuation: when a hand's keypoints are missed by more than [`TWIST_RETRY_MM`] on
-/// average, the solve is continued from its own result with the arm twists released to ±180°
-/// ([`IkConfig::wide_twists`]; a warm start runs the final stage only, so the continuation
-/// stays in the bounded solve's basin and only turns the twist bones further), and kept when
-/// the mean keypoint residual drops by at least [`TWIST_RETRY_GAIN`]. This is how a forearm
-/// twist beyond the training sampler's ±30° reaches the rig without letting a cold solve
-/// wander into the wrong minima a wide range opens.
-fn twist_continuation(
+/// Wide-range continuation: when a keypoint group is missed by more than [`WIDE_RETRY_MM`] on
+/// average, the solve is continued from its own result with the wide joint ranges
+/// ([`IkConfig::wide_ranges`]: arm twists ±180°, deeper hips, knees, shoulders; a warm start
+/// runs the final stage only, so the continuation stays in the bounded solve's basin and only
+/// moves the joints further), and kept when the mean keypoint residual drops by at least
+/// [`WIDE_RETRY_GAIN`]. This is how a forearm twist beyond the training sampler's ±30°, a
+/// crouch or a hand on the head reaches the rig without letting a cold solve wander into the
+/// wrong minima wide ranges open.
+fn wide_continuation(
     ik: &IkSolver,
     targets: &IkTargets,
     cfg: &IkConfig,
     r: IkResult,
 ) -> Result<IkResult> {
-    let hands = [r.group_mean_mm[2], r.group_mean_mm[3]];
-    if cfg.wide_twists || !hands.iter().flatten().any(|&m| m > TWIST_RETRY_MM) {
+    if cfg.wide_ranges || !r.group_mean_mm.iter().flatten().any(|&m| m > WIDE_RETRY_MM) {
         return Ok(r);
     }
     let wide = IkConfig {
-        wide_twists: true,
+        wide_ranges: true,
         initial_state: Some(r.state.clone()),
         ..cfg.clone()
     };
     let w = ik.solve(targets, &wide)?;
-    if w.mean_residual_mm() < (1.0 - TWIST_RETRY_GAIN) * r.mean_residual_mm() {
+    if w.mean_residual_mm() < (1.0 - WIDE_RETRY_GAIN) * r.mean_residual_mm() {
         Ok(IkResult {
             seconds: r.seconds + w.seconds,
             iterations: r.iterations + w.iterations,
@@ -526,7 +526,7 @@ pub fn init_of(r: &IkResult, ik: &IkSolver, names: &[String]) -> Init {
     let mut clamped = r.params.clone();
     let mut changed = false;
     for (n, e) in names.iter().zip(clamped.pose.euler_deg.iter_mut()) {
-        if crate::ik::ik_twist(n).is_none() {
+        if crate::ik::ik_wide_range(n)[1].is_none() {
             continue;
         }
         if let Some([_, [lo, hi], _]) = panoman_human::sampling::bone_range(n)

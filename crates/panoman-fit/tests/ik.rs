@@ -585,7 +585,7 @@ fn a_forearm_twist_beyond_the_sampler_is_reached_by_the_continuation() {
     let bounded = s.solve(&IkTargets::all(&kp).unwrap(), &config).unwrap();
     let hand = bounded.group_mean(KeypointGroup::LeftHand).unwrap();
     assert!(
-        hand > panoman_fit::pipeline::TWIST_RETRY_MM,
+        hand > panoman_fit::pipeline::WIDE_RETRY_MM,
         "bounded solve: left hand {hand} mm"
     );
     let c = panoman_fit::Constraints {

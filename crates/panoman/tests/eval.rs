@@ -103,7 +103,10 @@ fn small_evaluation_reports_every_experiment_and_repeats_exactly() {
         "{kinds:?}"
     );
     for c in &s.stress.cases {
-        assert!(c.errors.panoman.all_mean.is_finite() && c.errors.lbs.all_mean > 0.0, "{c:?}");
+        assert!(
+            c.errors.panoman.all_mean.is_finite() && c.errors.lbs.all_mean > 0.0,
+            "{c:?}"
+        );
         assert!(c.shell_steps_tried > 0 && c.shell_steps_accepted <= c.shell_steps_tried);
         assert_eq!(c.converged, c.reason.is_none());
     }

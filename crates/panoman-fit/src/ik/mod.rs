@@ -107,7 +107,7 @@ mod solver;
 mod stages;
 mod targets;
 
-pub use keypoint_model::ik_twist;
+pub use keypoint_model::ik_wide_range;
 pub use solver::IkSolver;
 pub use targets::{IkTarget, IkTargets, PointTarget};
 
@@ -170,12 +170,13 @@ pub struct IkConfig {
     /// [`IkResult::state`]) and run only the final `all` stage, without the Kabsch
     /// initialisation, the early stages or the phenotype restart. `None` (default): cold.
     pub initial_state: Option<IkState>,
-    /// Let the arms' `*02` twist bones turn ±180° ([`ik_twist`]) instead of the sampler's
-    /// ±30° (default false). A cold solve with the wide range finds wrong minima more often
-    /// (measured: held-out fits from exact keypoints 7.3 → 10.2 mm), so the pipeline uses it
-    /// only as a continuation from a bounded solve whose hand keypoints are missed
+    /// Use the wide joint ranges of [`ik_wide_range`] (arm twists ±180°, shoulders, elbows,
+    /// hips, knees and ankles beyond the sampler's ranges) instead of the sampler's (default
+    /// false). A cold solve with wide ranges finds wrong minima more often (measured with the
+    /// twists alone: held-out fits from exact keypoints 7.3 → 10.2 mm), so the pipeline uses
+    /// them only as a continuation from a bounded solve that misses its keypoints
     /// ([`crate::pipeline::ik_fit`]).
-    pub wide_twists: bool,
+    pub wide_ranges: bool,
 }
 
 impl Default for IkConfig {
@@ -194,7 +195,7 @@ impl Default for IkConfig {
             tolerance: 1e-9,
             initial_shape: None,
             initial_state: None,
-            wide_twists: false,
+            wide_ranges: false,
         }
     }
 }
