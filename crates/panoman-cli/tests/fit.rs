@@ -295,6 +295,7 @@ fn point_cloud_with_missing_part_and_noise_helps() {
         posed: ikr.posed.clone(),
         rest: ikr.rest.clone(),
         theta: None,
+        guide: None,
     };
     let base = fitter.fit(&c, &init, &FitOptions::default()).unwrap();
     let with_points = Constraints {
@@ -348,6 +349,7 @@ fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
         posed: truth.clone(),
         rest: rest.clone(),
         theta: None,
+        guide: None,
     };
     let empty = Constraints {
         points: Some((Vec::new(), None)),
@@ -363,6 +365,7 @@ fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
         posed: truth[..10].to_vec(),
         rest: rest.clone(),
         theta: None,
+        guide: None,
     };
     let e = fitter.fit(&c, &wrong, &FitOptions::default()).unwrap_err();
     assert!(e.to_string().contains("vertices"), "{e}");

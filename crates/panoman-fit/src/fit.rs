@@ -221,6 +221,13 @@ pub struct Init {
     /// The skeleton pose that produced `posed` (local Euler angles in radians by bone name),
     /// for the motion MLP's β_B (see [`FitOptions::motion_init`]).
     pub theta: Option<std::collections::BTreeMap<String, [f64; 3]>>,
+    /// A mesh of the same person whose *local* shape the first guidance pose is projected
+    /// from instead of `posed` (RL/RA are invariant to rigid motion, so a limb rotated as a
+    /// whole keeps them): the IK's pose with large arm twists clamped to where linear-blend
+    /// skinning does not collapse the limb. The V-steps still start from `posed` (whose
+    /// keypoints are right), and the shell energy toward this guidance restores the limb's
+    /// lengths and cross-sections while the keypoints keep the twist (PanoMan Fig. 1, 13).
+    pub guide: Option<Vec<V3>>,
 }
 
 /// Time, iterations and energies of one stage.
@@ -683,7 +690,8 @@ impl Fitter {
             }
             _ => None,
         };
-        self.beta_step(&init.posed, &rg, &mut params, c, opts)?;
+        let guide = init.guide.as_ref().filter(|g| g.len() == nv);
+        self.beta_step(guide.unwrap_or(&init.posed), &rg, &mut params, c, opts)?;
         if let Some((bl, ba)) = start_theta {
             let fixed = |name: &str| {
                 c.fixed

@@ -127,7 +127,49 @@ pub fn ik_fit(ik: &IkSolver, c: &Constraints, cfg: &IkConfig) -> Result<IkResult
         ));
     }
     let targets = IkTargets::from_file(&c.keypoints)?;
-    ik.solve(&targets, cfg)
+    let r = ik.solve(&targets, cfg)?;
+    wide_continuation(ik, &targets, cfg, r)
+}
+
+/// Mean keypoint residual of a group (mm) above which [`ik_fit`] tries the wide ranges.
+pub const WIDE_RETRY_MM: f64 = 1.0;
+
+/// The relative drop of the mean keypoint residual the wide-range continuation must reach to
+/// be kept (against the bounded solve's).
+pub const WIDE_RETRY_GAIN: f64 = 0.25;
+
+/// Wide-range continuation: when a keypoint group is missed by more than [`WIDE_RETRY_MM`] on
+/// average, the solve is continued from its own result with the wide joint ranges
+/// ([`IkConfig::wide_ranges`]: arm twists ±180°, deeper hips, knees, shoulders; a warm start
+/// runs the final stage only, so the continuation stays in the bounded solve's basin and only
+/// moves the joints further), and kept when the mean keypoint residual drops by at least
+/// [`WIDE_RETRY_GAIN`]. This is how a forearm twist beyond the training sampler's ±30°, a
+/// crouch or a hand on the head reaches the rig without letting a cold solve wander into the
+/// wrong minima wide ranges open.
+fn wide_continuation(
+    ik: &IkSolver,
+    targets: &IkTargets,
+    cfg: &IkConfig,
+    r: IkResult,
+) -> Result<IkResult> {
+    if cfg.wide_ranges || !r.group_mean_mm.iter().flatten().any(|&m| m > WIDE_RETRY_MM) {
+        return Ok(r);
+    }
+    let wide = IkConfig {
+        wide_ranges: true,
+        initial_state: Some(r.state.clone()),
+        ..cfg.clone()
+    };
+    let w = ik.solve(targets, &wide)?;
+    if w.mean_residual_mm() < (1.0 - WIDE_RETRY_GAIN) * r.mean_residual_mm() {
+        Ok(IkResult {
+            seconds: r.seconds + w.seconds,
+            iterations: r.iterations + w.iterations,
+            ..w
+        })
+    } else {
+        Ok(r)
+    }
 }
 
 /// Controls of [`ik_icp`].
@@ -469,8 +511,10 @@ impl Sequence {
     }
 }
 
-/// The fit's starting point from an IK result: its posed and rest meshes and its skeleton pose
-/// (local Euler angles in radians by bone name, for the motion MLP).
+/// The fit's starting point from an IK result: its posed and rest meshes, its skeleton pose
+/// (local Euler angles in radians by bone name, for the motion MLP) and, when the IK twisted
+/// an arm's `*02` bone beyond the sampler's range, the guide mesh of [`Init::guide`] (the same
+/// pose with those twists clamped to the range, where the rig's skin does not collapse).
 pub fn init_of(r: &IkResult, ik: &IkSolver, names: &[String]) -> Init {
     let pose = ik.pose_params(&r.state);
     let theta = names
@@ -479,10 +523,38 @@ pub fn init_of(r: &IkResult, ik: &IkSolver, names: &[String]) -> Init {
         .filter(|(_, e)| **e != [0.0; 3])
         .map(|(n, e)| (n.clone(), e.map(f64::to_radians)))
         .collect();
+    let mut clamped = r.params.clone();
+    let mut changed = false;
+    for (n, e) in names.iter().zip(clamped.pose.euler_deg.iter_mut()) {
+        if crate::ik::ik_wide_range(n)[1].is_none() {
+            continue;
+        }
+        if let Some([_, [lo, hi], _]) = panoman_human::sampling::bone_range(n)
+            && (e[1] < lo || e[1] > hi)
+        {
+            e[1] = e[1].clamp(lo, hi);
+            changed = true;
+        }
+    }
+    // Beyond the sampler's twist range the start is the same pose skinned by dual quaternions
+    // (no candy-wrapper collapse: the shell does not undo a collapsed start, whose folded
+    // dihedral angles sit in another basin), and the first guidance is projected from the
+    // clamped-twist LBS mesh.
+    let wide = || {
+        Some((
+            ik.posed_mesh_dqs(&r.params).ok()?,
+            ik.posed_mesh(&clamped).ok()?,
+        ))
+    };
+    let (posed, guide) = match changed.then(wide).flatten() {
+        Some((dqs, g)) => (dqs, Some(g)),
+        None => (r.posed.clone(), None),
+    };
     Init {
-        posed: r.posed.clone(),
+        posed,
         rest: r.rest.clone(),
         theta: Some(theta),
+        guide,
     }
 }
 

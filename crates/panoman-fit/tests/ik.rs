@@ -558,3 +558,47 @@ fn surface_points_recover_the_mesh_better_than_keypoints() {
         assert!(e2 <= 0.5 && e2 * 5.0 <= e0, "warm: {e0:.2} → {e2:.2} mm");
     }
 }
+
+/// A forearm twist far beyond the sampler's ±30° (150° on `lowerarm02.L`, elbow bent so the
+/// hand's keypoints show the roll): the bounded solve misses the left hand's keypoints; the
+/// pipeline's wide-twist continuation ([`panoman_fit::ik_fit`]) turns the forearm bone to the
+/// twist and fits every keypoint.
+#[test]
+fn a_forearm_twist_beyond_the_sampler_is_reached_by_the_continuation() {
+    use panoman_human::keypoints::KeypointsFile;
+    let s = solver();
+    let g = &fx().generator;
+    let names = g.bone_names();
+    let bone = |n: &str| names.iter().position(|b| b == n).unwrap();
+    let mut truth = GeneratorParams::default();
+    truth.pose.euler_deg = vec![[0.0; 3]; names.len()];
+    truth.pose.euler_deg[bone("upperarm01.L")] = [20.0, 0.0, -30.0];
+    truth.pose.euler_deg[bone("lowerarm01.L")] = [35.0, 0.0, 0.0];
+    truth.pose.euler_deg[bone("lowerarm02.L")] = [0.0, 150.0, 0.0];
+    let mesh = small_mesh(&truth);
+    let kp = fx().small_set.evaluate(&mesh);
+    let config = IkConfig {
+        fit_phenotype: false,
+        initial_shape: Some(truth.shape.clone()),
+        ..IkConfig::default()
+    };
+    let bounded = s.solve(&IkTargets::all(&kp).unwrap(), &config).unwrap();
+    let hand = bounded.group_mean(KeypointGroup::LeftHand).unwrap();
+    assert!(
+        hand > panoman_fit::pipeline::WIDE_RETRY_MM,
+        "bounded solve: left hand {hand} mm"
+    );
+    let c = panoman_fit::Constraints {
+        keypoints: KeypointsFile::from_all(&kp),
+        ..Default::default()
+    };
+    let r = panoman_fit::ik_fit(s, &c, &config).unwrap();
+    let twist = r.state.angles[bone("lowerarm02.L")][1].to_degrees();
+    eprintln!(
+        "twist 150°: bounded {:.2} mm (hand {hand:.2}), continued {:.3} mm, lowerarm02.L y {twist:.1}°",
+        bounded.mean_residual_mm(),
+        r.mean_residual_mm()
+    );
+    assert!(r.mean_residual_mm() < 0.5, "{}", r.mean_residual_mm());
+    assert!((twist - 150.0).abs() < 15.0, "lowerarm02.L twist {twist}°");
+}

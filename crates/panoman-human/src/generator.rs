@@ -674,6 +674,19 @@ impl<'g> Identity<'g> {
         out
     }
 
+    /// [`Identity::pose`] with dual-quaternion skinning ([`SkinWeights::skin_dqs`]) instead
+    /// of LBS: the same bones and weights, without the twist collapse. Not Anny's model (the
+    /// generator and its data are LBS); the fit uses it as a starting mesh for twists beyond
+    /// the training sampler's range.
+    pub fn pose_dqs(&self, pose: &PoseParams) -> Posed {
+        let mut out = Posed::default();
+        self.pose_into(pose, &mut out);
+        self.generator
+            .skin
+            .skin_dqs(&out.skin, &self.rest_output, &mut out.vertices);
+        out
+    }
+
     /// [`Identity::pose`] into a reusable buffer.
     pub fn pose_into(&self, pose: &PoseParams, out: &mut Posed) {
         let d = self.pose_deltas(pose);

@@ -145,6 +145,51 @@ impl SkinWeights {
             .for_each(|(ci, chunk)| self.skin_range(skin, rest, ci * CHUNK, chunk));
     }
 
+    /// Dual-quaternion skinning (Kavan et al. 2008): each rigid `skin[j]` as a unit dual
+    /// quaternion `q̂_j = q_j + ε ½ (0, t_j) q_j`, blended per row as `b̂ = Σ_j w_kj s_kj q̂_j`
+    /// with `s_kj = ±1` putting every `q_j` in the hemisphere of the row's heaviest bone,
+    /// normalised by `|b|` (the real part's norm) and applied to `rest[k]`. Unlike
+    /// [`SkinWeights::skin`] it does not shrink a limb whose bones differ by a twist (the
+    /// "candy wrapper": LBS keeps `cos(θ/2)` of the radius where two bones twisted by `θ`
+    /// blend half and half). The skin transforms must be rigid (rotation + translation),
+    /// as the rig's are.
+    ///
+    /// # Panics
+    /// If `rest` or `out` do not have [`SkinWeights::len`] entries.
+    pub fn skin_dqs(&self, skin: &[Affine], rest: &[V3], out: &mut [V3]) {
+        assert_eq!(rest.len(), self.len(), "rest positions vs skin rows");
+        assert_eq!(out.len(), self.len(), "output positions vs skin rows");
+        let dq: Vec<([f64; 4], [f64; 4])> = skin.iter().map(dual_quaternion).collect();
+        out.par_iter_mut().enumerate().for_each(|(k, o)| {
+            let (a, b) = (self.offsets[k] as usize, self.offsets[k + 1] as usize);
+            let pivot = (a..b)
+                .max_by(|&i, &j| self.weights[i].total_cmp(&self.weights[j]))
+                .map_or([1.0, 0.0, 0.0, 0.0], |e| dq[self.bones[e] as usize].0);
+            let (mut r, mut d) = ([0.0f64; 4], [0.0f64; 4]);
+            for e in a..b {
+                let (qr, qd) = &dq[self.bones[e] as usize];
+                let dot: f64 = (0..4).map(|i| qr[i] * pivot[i]).sum();
+                let w = if dot < 0.0 {
+                    -self.weights[e]
+                } else {
+                    self.weights[e]
+                };
+                for i in 0..4 {
+                    r[i] += w * qr[i];
+                    d[i] += w * qd[i];
+                }
+            }
+            let n = (r.iter().map(|x| x * x).sum::<f64>()).sqrt().max(1e-300);
+            let (r, d) = (r.map(|x| x / n), d.map(|x| x / n));
+            // t = 2 (d ⊗ r*) (vector part); then x' = R(r) x + t.
+            let rc = [r[0], -r[1], -r[2], -r[3]];
+            let tq = quat_mul(d, rc);
+            let t = [2.0 * tq[1], 2.0 * tq[2], 2.0 * tq[3]];
+            let x = quat_rotate(r, rest[k]);
+            *o = [x[0] + t[0], x[1] + t[1], x[2] + t[2]];
+        });
+    }
+
     /// [`SkinWeights::skin`] of rows `first..first + out.len()` on the calling thread.
     pub fn skin_range(&self, skin: &[Affine], rest: &[V3], first: usize, out: &mut [V3]) {
         for (k, o) in (first..).zip(out.iter_mut()) {
@@ -173,5 +218,130 @@ impl SkinWeights {
                 m[8] * v[0] + m[9] * v[1] + m[10] * v[2] + m[11],
             ];
         }
+    }
+}
+
+/// Hamilton product of quaternions `[w, x, y, z]`.
+fn quat_mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+    [
+        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+    ]
+}
+
+/// `x` rotated by the unit quaternion `q`: `q (0, x) q*`.
+fn quat_rotate(q: [f64; 4], x: V3) -> V3 {
+    let p = quat_mul(
+        quat_mul(q, [0.0, x[0], x[1], x[2]]),
+        [q[0], -q[1], -q[2], -q[3]],
+    );
+    [p[1], p[2], p[3]]
+}
+
+/// The unit quaternion of a rotation matrix (Shepperd: from the largest of the trace and the
+/// diagonal, for accuracy near 180°), and the dual part `½ (0, t) q` of the rigid motion.
+fn dual_quaternion(a: &Affine) -> ([f64; 4], [f64; 4]) {
+    let m = &a.m;
+    let tr = m[0][0] + m[1][1] + m[2][2];
+    let q = if tr > m[0][0].max(m[1][1]).max(m[2][2]) {
+        let s = 2.0 * (1.0 + tr).sqrt();
+        [
+            0.25 * s,
+            (m[2][1] - m[1][2]) / s,
+            (m[0][2] - m[2][0]) / s,
+            (m[1][0] - m[0][1]) / s,
+        ]
+    } else if m[0][0] >= m[1][1] && m[0][0] >= m[2][2] {
+        let s = 2.0 * (1.0 + m[0][0] - m[1][1] - m[2][2]).max(0.0).sqrt();
+        [
+            (m[2][1] - m[1][2]) / s,
+            0.25 * s,
+            (m[0][1] + m[1][0]) / s,
+            (m[0][2] + m[2][0]) / s,
+        ]
+    } else if m[1][1] >= m[2][2] {
+        let s = 2.0 * (1.0 + m[1][1] - m[0][0] - m[2][2]).max(0.0).sqrt();
+        [
+            (m[0][2] - m[2][0]) / s,
+            (m[0][1] + m[1][0]) / s,
+            0.25 * s,
+            (m[1][2] + m[2][1]) / s,
+        ]
+    } else {
+        let s = 2.0 * (1.0 + m[2][2] - m[0][0] - m[1][1]).max(0.0).sqrt();
+        [
+            (m[1][0] - m[0][1]) / s,
+            (m[0][2] + m[2][0]) / s,
+            (m[1][2] + m[2][1]) / s,
+            0.25 * s,
+        ]
+    };
+    let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let q = q.map(|x| x / n);
+    let d = quat_mul([0.0, a.t[0], a.t[1], a.t[2]], q).map(|x| 0.5 * x);
+    (q, d)
+}
+
+#[cfg(test)]
+mod dqs_tests {
+    use super::*;
+
+    /// One rigid transform per bone: DQS equals LBS (both reproduce the transform), and a
+    /// half-and-half blend of a 170° twist keeps the radius where LBS collapses it.
+    #[test]
+    fn dqs_is_rigid_per_bone_and_does_not_collapse_a_twist() {
+        let rot = |deg: f64| {
+            let (s, c) = deg.to_radians().sin_cos();
+            [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
+        };
+        let skin = [
+            Affine {
+                m: rot(0.0),
+                t: [0.0; 3],
+            },
+            Affine {
+                m: rot(170.0),
+                t: [0.0; 3],
+            },
+            Affine {
+                m: rot(-35.0),
+                t: [0.1, 0.5, -0.2],
+            },
+        ];
+        let w = SkinWeights {
+            offsets: vec![0, 1, 2, 4],
+            bones: vec![1, 2, 0, 1],
+            weights: vec![1.0, 1.0, 0.5, 0.5],
+        };
+        let rest = vec![[0.05, 0.3, 0.0], [0.0, 0.1, 0.05], [0.05, 0.0, 0.0]];
+        let (mut l, mut d) = (vec![[0.0; 3]; 3], vec![[0.0; 3]; 3]);
+        w.skin(&skin, &rest, &mut l);
+        w.skin_dqs(&skin, &rest, &mut d);
+        for k in 0..2 {
+            for i in 0..3 {
+                assert!(
+                    (l[k][i] - d[k][i]).abs() < 1e-12,
+                    "row {k}: {:?} vs {:?}",
+                    l[k],
+                    d[k]
+                );
+            }
+        }
+        // Row 2: radius 0.05 about the y axis (the twist axis); the blend of 0° and 170°
+        // about y keeps it under DQS, LBS keeps cos(85°) of it.
+        let radius = |p: V3| (p[0].powi(2) + p[2].powi(2)).sqrt();
+        assert!(
+            (radius(d[2]) - 0.05).abs() < 1e-12,
+            "DQS radius {}",
+            radius(d[2])
+        );
+        let lbs = 0.05 * 85f64.to_radians().cos();
+        assert!(
+            (radius(l[2]) - lbs).abs() < 1e-12,
+            "LBS radius {} vs {lbs}",
+            radius(l[2])
+        );
     }
 }

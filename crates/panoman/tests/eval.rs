@@ -16,6 +16,11 @@ fn without_timings(s: &EvalSummary) -> serde_json::Value {
     for k in ["cold_fit_median_s", "warm_frame_median_s"] {
         v["headline"][k] = serde_json::Value::Null;
     }
+    if let Some(cases) = v["stress"]["cases"].as_array_mut() {
+        for c in cases {
+            c["seconds"] = serde_json::Value::Null;
+        }
+    }
     v
 }
 
@@ -57,7 +62,7 @@ fn small_evaluation_reports_every_experiment_and_repeats_exactly() {
         EvalProgress::Detail(_) => {}
     })
     .unwrap();
-    assert_eq!(experiments.len(), 6, "{experiments:?}");
+    assert_eq!(experiments.len(), 7, "{experiments:?}");
     assert!(steps >= 2 * 2 + 3, "{steps} steps");
 
     let s = &out.summary;
@@ -89,6 +94,26 @@ fn small_evaluation_reports_every_experiment_and_repeats_exactly() {
         s.fit_held_out.exact.panoman.all_mean
     );
     assert_eq!(s.meta.preset, "small");
+    // The stress set: one case of each kind, each fitted and measured; the twist case has its
+    // forearm and shoulder measures; every case is rendered.
+    let kinds: Vec<&str> = s.stress.cases.iter().map(|c| c.kind.as_str()).collect();
+    assert_eq!(
+        kinds,
+        ["composite", "extreme shape", "twist", "posture", "contact"],
+        "{kinds:?}"
+    );
+    for c in &s.stress.cases {
+        assert!(
+            c.errors.panoman.all_mean.is_finite() && c.errors.lbs.all_mean > 0.0,
+            "{c:?}"
+        );
+        assert!(c.shell_steps_tried > 0 && c.shell_steps_accepted <= c.shell_steps_tried);
+        assert_eq!(c.converged, c.reason.is_none());
+    }
+    let tw = s.stress.cases[2].twist.expect("twist measures");
+    assert!(tw.min_radius_ratio.panoman > 0.0 && tw.shoulder_mean_mm.lbs.is_finite());
+    assert_eq!(out.meshes.stress.len(), s.stress.cases.len());
+    assert!(s.stress.cases.iter().any(|c| c.name == s.stress.worst_case));
     // Round trip through the JSON layout.
     let text = serde_json::to_string(s).unwrap();
     let back: EvalSummary = serde_json::from_str(&text).unwrap();

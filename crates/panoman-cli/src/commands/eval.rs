@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use panoman::eval::{
     ClipFrame, EvalConfig, EvalOutput, EvalPreset, EvalProgress, EvalSummary, MeshTriple,
-    PartErrors, TwistSummary,
+    PartErrors, StressSummary, TwistSummary,
 };
 use panoman_mesh::TriMesh;
 use panoman_mesh::geom::{V3, norm, sub};
@@ -292,10 +292,44 @@ fn renders(dir: &Path, o: &EvalOutput) -> Result<()> {
             View::Front,
         )?;
     }
+    stress_renders(dir, o)?;
     if let Some(c) = &o.meshes.composite {
         c.params.write(&dir.join("composite.params.json"))?;
         let parts: Vec<_> = c.posed.iter().map(|x| (mesh(x), None)).collect();
         save_render(&dir.join("composite.png"), &parts, View::Front)?;
+    }
+    Ok(())
+}
+
+/// The stress set: `stress/NAME.png` per case and `stress_worst.png` (ground truth, PanoMan,
+/// LBS, coloured by per-vertex error, 0–30 mm).
+fn stress_renders(dir: &Path, o: &EvalOutput) -> Result<()> {
+    let faces = o.model.faces();
+    let mesh = |x: &[V3]| TriMesh::new(x.to_vec(), faces.to_vec());
+    if !o.meshes.stress.is_empty() {
+        std::fs::create_dir_all(dir.join("stress"))
+            .with_context(|| format!("{}: cannot create", dir.join("stress").display()))?;
+    }
+    for (name, t) in &o.meshes.stress {
+        let colors = |x: &[V3]| -> Vec<Rgb> {
+            x.iter()
+                .zip(&t.truth)
+                .map(|(p, q)| error_color(1e3 * norm(sub(*p, *q)) / 30.0))
+                .collect()
+        };
+        let parts = [
+            (mesh(&t.truth), None),
+            (mesh(&t.panoman), Some(colors(&t.panoman))),
+            (mesh(&t.lbs), Some(colors(&t.lbs))),
+        ];
+        save_render(
+            &dir.join("stress").join(format!("{name}.png")),
+            &parts,
+            View::Front,
+        )?;
+        if *name == o.summary.stress.worst_case {
+            save_render(&dir.join("stress_worst.png"), &parts, View::Front)?;
+        }
     }
     Ok(())
 }
@@ -349,6 +383,7 @@ fn html(s: &EvalSummary) -> String {
             );
         }
     }
+    let stress_rows = stress_table(&s.stress, &f);
     let mut timing_rows = String::new();
     for (name, t) in &s.timing.stages {
         let _ = writeln!(
@@ -406,7 +441,19 @@ per-vertex error from 0 (blue) to 30 mm (red).</figcaption></figure>
 <figure><img src="composite.png"><figcaption>Body of one fit, expression of a second, gesture of a third, and
 the composite posed from mixed β blocks (composite.params.json).</figcaption></figure>
 
-<h2>6. Timing (Table 1)</h2>
+<h2>6. Stress set: beyond the training sampler</h2>
+<p>Cases our generator makes outside the sampler the model was trained on (composites of body pose,
+gestures and expression; phenotypes at the edges; forearm twists up to 180°; a hand on the head and at
+the chin; a deep sit and a crouch), fitted from exact TC-127 keypoints. Errors in mm (PanoMan / LBS);
+steps: shell LM steps accepted/tried; Δ: largest distance between the PanoMan and LBS meshes (mm).
+Worst case: <b>{worst}</b>; cases above 20 mm: {o20p} PanoMan / {o20l} LBS; PanoMan more than 3 % above LBS:
+{o3}; flagged by the failure detector: {flagged}.</p>
+<table><tr><th>case</th><th>kind</th><th>all mean</th><th>body</th><th>hands</th><th>face</th><th>kp residual</th>
+<th>steps</th><th>Δ</th><th>verdict</th></tr>{stress_rows}</table>
+<figure><img src="stress_worst.png"><figcaption>The worst case: ground truth, PanoMan, LBS, coloured by
+per-vertex error from 0 (blue) to 30 mm (red); every case is rendered in <code>stress/</code>.</figcaption></figure>
+
+<h2>7. Timing (Table 1)</h2>
 <p>Cold fits from TC-127 keypoints, seconds on this machine; the paper reports 274.5 s per frame in total.
 Warm-started clip frames: median {wmed} s.</p>
 <table><tr><th>stage</th><th>min</th><th>median</th><th>max</th><th>runs</th></tr>{timing_rows}</table>
@@ -425,5 +472,46 @@ Warm-started clip frames: median {wmed} s.</p>
         ln = row("LBS, 5 mm noise", &fit.noise_5mm.lbs),
         frames = s.clip.frames,
         wmed = f(s.clip.warm_s.median),
+        worst = s.stress.worst_case,
+        o20p = s.stress.cases_over_20mm.panoman,
+        o20l = s.stress.cases_over_20mm.lbs,
+        o3 = s.stress.panoman_over_lbs_3pct,
+        flagged = s.stress.flagged,
     )
+}
+
+/// The stress set's rows: per case PanoMan / LBS errors, residual, steps, verdict; twist
+/// cases add a row with the forearm radius ratio and the shoulder / hand errors.
+fn stress_table(st: &StressSummary, f: &dyn Fn(f64) -> String) -> String {
+    let mut rows = String::new();
+    let pair = |p: f64, l: f64| format!("{} / {}", f(p), f(l));
+    for c in &st.cases {
+        let (p, l) = (&c.errors.panoman, &c.errors.lbs);
+        let _ = write!(
+            rows,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}/{}</td><td>{}</td><td>{}</td></tr>",
+            c.name,
+            c.kind,
+            pair(p.all_mean, l.all_mean),
+            pair(p.body_mean, l.body_mean),
+            pair(p.hands_mean, l.hands_mean),
+            pair(p.face_mean, l.face_mean),
+            pair(c.keypoint_residual_mm.panoman, c.keypoint_residual_mm.lbs),
+            c.shell_steps_accepted,
+            c.shell_steps_tried,
+            f(c.differs_from_lbs_mm),
+            c.reason.as_deref().unwrap_or("converged"),
+        );
+        if let Some(t) = &c.twist {
+            let _ = write!(
+                rows,
+                "<tr><td></td><td colspan=\"9\">forearm radius ratio {} (truth {}), shoulder {} mm, hand {} mm (PanoMan / LBS)</td></tr>",
+                pair(t.min_radius_ratio.panoman, t.min_radius_ratio.lbs),
+                f(t.truth_min_radius_ratio),
+                pair(t.shoulder_mean_mm.panoman, t.shoulder_mean_mm.lbs),
+                pair(t.hand_mean_mm.panoman, t.hand_mean_mm.lbs),
+            );
+        }
+    }
+    rows
 }

@@ -208,6 +208,19 @@ pub(super) struct Posable {
     /// Per axis `1/s²` with `s = max(|lo|, |hi|)` of the range (0 for an empty range): the
     /// prior measures each angle against the largest angle its range allows.
     pub(super) prior: [f64; 3],
+    /// Per axis, the range (radians) and prior factor under [`super::IkConfig::wide_ranges`]
+    /// ([`ik_wide_range`]); `None` where the sampler's range stands.
+    pub(super) wide: [Option<([f64; 2], f64)>; 3],
+}
+
+impl Posable {
+    /// Range and prior factor of `axis` (the wide one when `wide` and the axis has one).
+    pub(super) fn axis(&self, axis: usize, wide: bool) -> ([f64; 2], f64) {
+        match self.wide[axis] {
+            Some(w) if wide => w,
+            _ => (self.range[axis], self.prior[axis]),
+        }
+    }
 }
 
 /// Rest-shape quantities of one `(β, f)`.
@@ -601,8 +614,45 @@ pub(super) fn unit_joint_moves(
         .collect()
 }
 
+/// The IK's wide ranges (degrees, with the prior scale `s` of each), used under
+/// [`super::IkConfig::wide_ranges`] instead of the sampler's ([`panoman_human::sampling::bone_range`],
+/// chosen for what the training data should contain — e.g. ±30° arm twists, where the LBS
+/// skin starts to collapse — not for anatomy): the arms' `*02` twist bones ±180° (a forearm
+/// rolls about ±90° and the keypoints of a large twist must be reachable; the prior scale is
+/// 90° on the forearm and 30° on the upper arm, so that a roll the keypoints cannot place, on
+/// a straight arm, goes mostly to the forearm: the prior splits a roll in proportion to the
+/// squared scales), the shoulder to 180° of flexion and abduction, the elbow to 160°, the hip
+/// to 140° of flexion, the knee to 165° and the ankle to −40…60° (a crouch, a hand on the
+/// head). Per axis `[x, y, z]`, in the bone's own frame (right-side bones mirrored as
+/// [`panoman_human::sampling::bone_range`] does); `None` where the sampler's range stands.
+pub fn ik_wide_range(bone: &str) -> [Option<([f64; 2], f64)>; 3] {
+    let (base, right) = match bone.strip_suffix(".R") {
+        Some(b) => (b, true),
+        None => (bone.strip_suffix(".L").unwrap_or(bone), false),
+    };
+    let left: [Option<([f64; 2], f64)>; 3] = match base {
+        "lowerarm02" => [None, Some(([-180.0, 180.0], 90.0)), None],
+        "upperarm02" => [None, Some(([-180.0, 180.0], 30.0)), None],
+        "upperarm01" => [
+            Some(([-90.0, 180.0], 90.0)),
+            None,
+            Some(([-90.0, 180.0], 90.0)),
+        ],
+        "lowerarm01" => [Some(([-35.0, 160.0], 95.0)), None, None],
+        "upperleg01" => [Some(([-140.0, 45.0], 90.0)), None, None],
+        "lowerleg01" => [Some(([0.0, 165.0], 120.0)), None, None],
+        "foot" => [Some(([-40.0, 60.0], 40.0)), None, None],
+        _ => [None; 3],
+    };
+    if !right {
+        return left;
+    }
+    let m = |a: Option<([f64; 2], f64)>| a.map(|([lo, hi], s)| ([-hi, -lo], s));
+    [left[0], m(left[1]), m(left[2])]
+}
+
 /// The posable bones of the sampler in `rig`, with their ranges in radians and prior
-/// factors.
+/// factors (and the wide ones of [`ik_wide_range`]).
 ///
 /// # Errors
 /// [`FitError::Invalid`] if the rig lacks a posable bone.
@@ -620,11 +670,15 @@ pub(super) fn posable_of(rig: &panoman_human::rig::Rig) -> Result<Vec<Posable>> 
                 let s = lo.abs().max(hi.abs());
                 if lo < hi { 1.0 / (s * s) } else { 0.0 }
             });
+            let wide = ik_wide_range(name).map(|a| {
+                a.map(|(r, scale)| (r.map(f64::to_radians), 1.0 / scale.to_radians().powi(2)))
+            });
             Ok(Posable {
                 rig: c,
                 slot,
                 range,
                 prior,
+                wide,
             })
         })
         .collect::<Result<Vec<_>>>()

@@ -107,6 +107,7 @@ mod solver;
 mod stages;
 mod targets;
 
+pub use keypoint_model::ik_wide_range;
 pub use solver::IkSolver;
 pub use targets::{IkTarget, IkTargets, PointTarget};
 
@@ -169,6 +170,13 @@ pub struct IkConfig {
     /// [`IkResult::state`]) and run only the final `all` stage, without the Kabsch
     /// initialisation, the early stages or the phenotype restart. `None` (default): cold.
     pub initial_state: Option<IkState>,
+    /// Use the wide joint ranges of [`ik_wide_range`] (arm twists ±180°, shoulders, elbows,
+    /// hips, knees and ankles beyond the sampler's ranges) instead of the sampler's (default
+    /// false). A cold solve with wide ranges finds wrong minima more often (measured with the
+    /// twists alone: held-out fits from exact keypoints 7.3 → 10.2 mm), so the pipeline uses
+    /// them only as a continuation from a bounded solve that misses its keypoints
+    /// ([`crate::pipeline::ik_fit`]).
+    pub wide_ranges: bool,
 }
 
 impl Default for IkConfig {
@@ -187,6 +195,7 @@ impl Default for IkConfig {
             tolerance: 1e-9,
             initial_shape: None,
             initial_state: None,
+            wide_ranges: false,
         }
     }
 }

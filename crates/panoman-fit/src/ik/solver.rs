@@ -214,6 +214,28 @@ impl IkSolver {
         }
     }
 
+    /// The generator's posed mesh of `params` on the solver's topology (metres), as
+    /// [`IkResult::posed`] is made.
+    ///
+    /// # Errors
+    /// Invalid shape parameters.
+    pub fn posed_mesh(&self, params: &GeneratorParams) -> Result<Vec<V3>> {
+        let identity = self.generator.identity(&params.shape)?;
+        let posed = identity.pose(&params.pose);
+        Ok(self.map.map(self.topology, &posed.vertices))
+    }
+
+    /// [`IkSolver::posed_mesh`] with dual-quaternion skinning
+    /// ([`panoman_human::generator::Identity::pose_dqs`]).
+    ///
+    /// # Errors
+    /// Invalid shape parameters.
+    pub fn posed_mesh_dqs(&self, params: &GeneratorParams) -> Result<Vec<V3>> {
+        let identity = self.generator.identity(&params.shape)?;
+        let posed = identity.pose_dqs(&params.pose);
+        Ok(self.map.map(self.topology, &posed.vertices))
+    }
+
     /// [`IkSolver::shape_params`] and [`IkSolver::pose_params`] together.
     pub fn params(&self, state: &IkState, template: &ShapeParams) -> GeneratorParams {
         GeneratorParams {

@@ -270,14 +270,14 @@ impl IkSolver {
                 continue;
             }
             for axis in 0..3 {
-                let [lo, hi] = p.range[axis];
+                let ([lo, hi], prior) = p.axis(axis, config.wide_ranges);
                 if lo < hi {
                     vs.push(Var::Angle {
                         bone: p.rig,
                         axis,
                         lo,
                         hi,
-                        prior: p.prior[axis],
+                        prior,
                     });
                 }
             }

@@ -1,7 +1,8 @@
 //! The paper's experiments on open data (`panoman eval`): representation error and component
 //! curves (Fig. 7, 18), fits of held-out people from exact and noisy TC-127 keypoints
 //! (Fig. 19–20), a held-out motion clip tracked frame after frame, the twist study (Fig. 1,
-//! 13), a composite motion (Fig. 16) and stage timings (Table 1).
+//! 13), a composite motion (Fig. 16), the stress set (cases beyond the training sampler,
+//! per case, PanoMan beside the LBS baseline) and stage timings (Table 1).
 //!
 //! [`run_all`] runs them in that order and returns an [`EvalOutput`]: the typed
 //! [`EvalSummary`] (`summary.json`), the per-frame clip errors, the component curves and the
@@ -31,6 +32,7 @@ mod composite;
 mod fitting;
 pub mod metrics;
 mod representation;
+mod stress;
 pub mod summary;
 mod timing;
 mod twist;
@@ -56,6 +58,16 @@ pub struct EvalPreset {
     pub repr_rows: usize,
     /// Held-out rows per kind for the component curves.
     pub curve_rows: usize,
+    /// Stress set: whole-body composites (body pose + gestures + expression).
+    pub stress_composites: usize,
+    /// Stress set: phenotypes at the sampler's edges (at most 5).
+    pub stress_extremes: usize,
+    /// Stress set: forearm twists (degrees).
+    pub stress_twists_deg: Vec<f64>,
+    /// Stress set: contact cases (hand on head, hand at chin; at most 2).
+    pub stress_contacts: usize,
+    /// Stress set: postures (deep sit, crouch; at most 2).
+    pub stress_postures: usize,
 }
 
 impl EvalPreset {
@@ -69,6 +81,11 @@ impl EvalPreset {
             twist_angles: vec![0.0, 30.0, 60.0, 90.0, 120.0, 150.0, 170.0, 180.0],
             repr_rows: 20,
             curve_rows: 8,
+            stress_composites: 6,
+            stress_extremes: 5,
+            stress_twists_deg: vec![120.0, 150.0, 170.0, 180.0],
+            stress_contacts: 2,
+            stress_postures: 2,
         }
     }
 
@@ -82,6 +99,11 @@ impl EvalPreset {
             twist_angles: vec![0.0, 90.0, 150.0, 170.0, 180.0],
             repr_rows: 4,
             curve_rows: 2,
+            stress_composites: 1,
+            stress_extremes: 1,
+            stress_twists_deg: vec![150.0],
+            stress_contacts: 1,
+            stress_postures: 1,
         }
     }
 
@@ -169,6 +191,8 @@ pub struct EvalMeshes {
     pub twist_forearm: Vec<TwistRender>,
     /// The composite motion.
     pub composite: Option<CompositeMeshes>,
+    /// Every case of the stress set, by name (the worst is `summary.stress.worst_case`).
+    pub stress: Vec<(String, MeshTriple)>,
 }
 
 /// Everything [`run_all`] measures.
@@ -286,6 +310,9 @@ pub fn run_all(
     progress(EvalProgress::Experiment("composite motion"));
     let composite = composite::run(&mut b, &held, progress)?;
 
+    progress(EvalProgress::Experiment("stress set"));
+    let stress = stress::run(&mut b, preset, cfg.seed, progress)?;
+
     let timing = timing::summary(&held.stage_times, &clip.warm_stage_times, &clip.warm_s);
     let meta = EvalMeta {
         data: cfg.data.display().to_string(),
@@ -303,6 +330,7 @@ pub fn run_all(
         headline,
         meta,
         representation,
+        stress: stress.summary,
         timing,
         twist: twist.summary,
     };
@@ -316,6 +344,7 @@ pub fn run_all(
             error_map: clip.map_frame,
             twist_forearm: twist.forearm,
             composite: composite.map(|c| c.1),
+            stress: stress.meshes,
         },
     })
 }

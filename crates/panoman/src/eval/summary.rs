@@ -21,6 +21,8 @@ fn nan_if_null<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
 /// - `clip`: a held-out motion clip, PanoMan tracked vs the LBS rig per frame ([`ClipSummary`]);
 /// - `twist`: the twist study ([`TwistSummary`]), Fig. 1 / 13;
 /// - `composite`: which rows the composite motion was built from, or `null` ([`CompositeRows`]);
+/// - `stress`: the stress set ([`StressSummary`]): composites, extreme shapes, large twists,
+///   contacts and postures made by our generator beyond the training sampler, per case;
 /// - `timing`: stage timings ([`TimingSummary`]), Table 1;
 /// - `meta`: the run ([`EvalMeta`]);
 /// - `headline`: the headline figures in one place ([`Headline`]).
@@ -42,10 +44,115 @@ pub struct EvalSummary {
     pub meta: EvalMeta,
     /// Held-out representation error per part.
     pub representation: RepresentationError,
+    /// The stress set.
+    pub stress: StressSummary,
     /// Stage timings.
     pub timing: TimingSummary,
     /// The twist study.
     pub twist: TwistSummary,
+}
+
+/// `stress`: every case of the stress set, their means and the worst case.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct StressSummary {
+    /// Per case, in the order they were run.
+    pub cases: Vec<StressCase>,
+    /// Means of the per-case means, max of the maxima.
+    pub mean: PerMethod<PartErrors>,
+    /// The case with the largest PanoMan mean error (rendered as `stress_worst.png`).
+    pub worst_case: String,
+    /// Cases whose mean error over all vertices exceeds 20 mm.
+    pub cases_over_20mm: PerMethod<usize>,
+    /// Cases where PanoMan's mean error is more than 3 % above the LBS baseline's.
+    pub panoman_over_lbs_3pct: usize,
+    /// Cases the failure detector flagged (`converged: false`).
+    pub flagged: usize,
+    /// Cases whose shell stage accepted at least one step.
+    pub cases_with_accepted_steps: usize,
+}
+
+impl StressSummary {
+    /// The summary of `cases`.
+    pub fn of(cases: Vec<StressCase>) -> StressSummary {
+        let (l, p): (Vec<PartErrors>, Vec<PartErrors>) = cases
+            .iter()
+            .map(|c| (c.errors.lbs, c.errors.panoman))
+            .unzip();
+        let worst_case = cases
+            .iter()
+            .max_by(|a, b| {
+                a.errors
+                    .panoman
+                    .all_mean
+                    .total_cmp(&b.errors.panoman.all_mean)
+            })
+            .map(|c| c.name.clone())
+            .unwrap_or_default();
+        let count = |f: &dyn Fn(&StressCase) -> bool| cases.iter().filter(|c| f(c)).count();
+        StressSummary {
+            mean: PerMethod {
+                lbs: super::metrics::mean_of(&l),
+                panoman: super::metrics::mean_of(&p),
+            },
+            worst_case,
+            cases_over_20mm: PerMethod {
+                lbs: count(&|c| c.errors.lbs.all_mean > 20.0),
+                panoman: count(&|c| c.errors.panoman.all_mean > 20.0),
+            },
+            panoman_over_lbs_3pct: count(&|c| {
+                c.errors.panoman.all_mean > 1.03 * c.errors.lbs.all_mean
+            }),
+            flagged: count(&|c| !c.converged),
+            cases_with_accepted_steps: count(&|c| c.shell_steps_accepted > 0),
+            cases,
+        }
+    }
+}
+
+/// One case of the stress set, fitted from its exact TC-127 keypoints.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct StressCase {
+    /// Its name (`composite_0`, `old_slim_woman`, `twist_forearm_150`, `hand_on_head`, …).
+    pub name: String,
+    /// `composite`, `extreme shape`, `twist`, `contact` or `posture`.
+    pub kind: String,
+    /// Per-vertex errors against the ground truth (mm).
+    pub errors: PerMethod<PartErrors>,
+    /// Mean keypoint residual over the 127 keypoints (mm).
+    pub keypoint_residual_mm: PerMethod<f64>,
+    /// Shell LM steps tried over the fit's stages.
+    pub shell_steps_tried: usize,
+    /// Of those, accepted.
+    pub shell_steps_accepted: usize,
+    /// Largest distance between PanoMan's and the LBS fit's vertices (mm): 0 when the shell
+    /// stage left the initializer's mesh as it was.
+    pub differs_from_lbs_mm: f64,
+    /// The failure detector's verdict.
+    pub converged: bool,
+    /// Why the detector flagged it (`null` when converged).
+    pub reason: Option<String>,
+    /// IK + shell fit (s).
+    pub seconds: f64,
+    /// Twist measures of a twist case.
+    pub twist: Option<StressTwist>,
+}
+
+/// The twist measures of a stress case: the forearm's smallest cross-section radius over the
+/// person's true rest, and the errors where the twist must be reproduced without collapse.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StressTwist {
+    /// The forearm twist (degrees).
+    pub angle_deg: f64,
+    /// The ground truth's (skinned, collapsing) ratio.
+    #[serde(deserialize_with = "nan_if_null")]
+    pub truth_min_radius_ratio: f64,
+    /// Smallest slice radius ratio of the fit over the person's true rest.
+    pub min_radius_ratio: PerMethod<f64>,
+    /// Mean error over the shoulder region (vertices within 12 cm of the shoulder joint at
+    /// rest, hand excluded; mm).
+    pub shoulder_mean_mm: PerMethod<f64>,
+    /// Mean error over the left hand (mm).
+    pub hand_mean_mm: PerMethod<f64>,
 }
 
 /// One value per method.
@@ -289,6 +396,14 @@ mod tests {
             },
             meta: EvalMeta::default(),
             representation: RepresentationError::default(),
+            stress: StressSummary::of(vec![StressCase {
+                name: "twist_forearm_150".into(),
+                twist: Some(StressTwist {
+                    truth_min_radius_ratio: f64::NAN,
+                    ..Default::default()
+                }),
+                ..Default::default()
+            }]),
             timing: TimingSummary::default(),
             twist: TwistSummary {
                 angles_deg: vec![0.0, 180.0],
@@ -317,10 +432,13 @@ mod tests {
                 "headline",
                 "meta",
                 "representation",
+                "stress",
                 "timing",
                 "twist"
             ]
         );
+        assert!(v["stress"]["cases"][0]["twist"]["truth_min_radius_ratio"].is_null());
+        assert_eq!(v["stress"]["worst_case"], "twist_forearm_150");
         assert!(v["composite"].is_null());
         assert!(v["headline"]["warm_frame_median_s"].is_null());
         assert!(v["twist"]["limbs"][0]["rows"][0]["rig_min_radius_ratio"].is_null());
