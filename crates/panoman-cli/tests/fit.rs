@@ -585,7 +585,7 @@ fn eval_small_configuration_writes_every_figure() {
     assert!(html.contains("twist_radius.png") && html.contains("error_map.png"));
 }
 
-/// The quality check (docs/design/shell-fit.md §5): a held-out person from exact keypoints
+/// The quality check (docs/design/shell-fit.md §7): a held-out person from exact keypoints
 /// passes on the first IK start; the same keypoints with the left wrist 0.5 m off cannot be
 /// met, so the initializer is retried from the other starts, and the fit, still returned, is
 /// flagged `converged: false` with a reason naming the body keypoints.

@@ -464,7 +464,7 @@ fn retry_starts(cfg: &IkConfig) -> Vec<(String, IkConfig, bool)> {
     out
 }
 
-/// The initializer with failure detection and recovery (docs/design/shell-fit.md §5): the IK
+/// The initializer with failure detection and recovery (docs/design/shell-fit.md §7): the IK
 /// of `cfg`; if it fails the quality check ([`ik_problems`]) and `q.retry`, the IK again from
 /// other starts (in parallel): cold (when `cfg` was warm-started), stronger priors (×100, then
 /// continued with `cfg`'s), the mean shape with the phenotype held (then continued with it

@@ -1,4 +1,4 @@
-//! Fit quality (docs/design/shell-fit.md §5): keypoint-residual thresholds, shape
+//! Fit quality (docs/design/shell-fit.md §7): keypoint-residual thresholds, shape
 //! plausibility and the verdict a fit carries (`converged`, `reason`, the IK attempts).
 //!
 //! **Thresholds.** With exact keypoints a fit that found the right basin leaves a residual of

@@ -180,7 +180,7 @@ pub struct FitReport {
     pub keypoint_residuals: BTreeMap<String, GroupResidual>,
     /// The quality check (flattened into report.json): `converged`, `reason` when not,
     /// the `thresholds` (mm), whether the initializer was `retried` and its `ik_attempts`
-    /// (docs/design/shell-fit.md §5). A fit with `converged: false` is still returned; the
+    /// (docs/design/shell-fit.md §7). A fit with `converged: false` is still returned; the
     /// CLI warns and exits 3.
     #[serde(flatten)]
     pub verdict: Verdict,

@@ -32,7 +32,7 @@ pub enum Baseline {
     for --baseline lbs) and DIR/report.json (time per stage, LM steps tried/accepted and\n\
     energies per stage, keypoint residual per group in mm, `converged` and `reason`).\n\
     Exit status: 0 a converged fit; 3 the outputs were written but the fit failed its\n\
-    quality check (keypoint residual above the thresholds of docs/design/shell-fit.md §5\n\
+    quality check (keypoint residual above the thresholds of docs/design/shell-fit.md §7\n\
     after retrying the initializer, or an implausible shape; a one-line warning names why);\n\
     1 an error. Handles: {\"handles\": [{\"vertex\": 123, \"position\": [x, y, z],\n\
     \"weight\": 1}]}. --params fixes α and the β blocks it gives (parameter edits).\n\n\
