@@ -93,12 +93,12 @@ impl QualityOptions {
             if r.n == 0 {
                 continue;
             }
-            if !(r.mean_mm <= t.mean_mm) {
+            if r.mean_mm.is_nan() || r.mean_mm > t.mean_mm {
                 out.push(format!(
                     "{g} keypoint mean {:.1} mm > {:.1} mm",
                     r.mean_mm, t.mean_mm
                 ));
-            } else if !(r.max_mm <= t.max_mm) {
+            } else if r.max_mm.is_nan() || r.max_mm > t.max_mm {
                 out.push(format!(
                     "{g} keypoint max {:.1} mm > {:.1} mm",
                     r.max_mm, t.max_mm
@@ -112,7 +112,7 @@ impl QualityOptions {
     /// [`QualityOptions::alpha_sigma`].
     pub fn shape_problems(&self, model: &PanoManModel, alpha: &[f64]) -> Vec<String> {
         let z = alpha_leading_sigma(model, alpha);
-        if !(z <= self.alpha_sigma) {
+        if z.is_nan() || z > self.alpha_sigma {
             vec![format!(
                 "shape outside the PCA prior (|α|/σ {z:.1} > {:.1} on a leading component)",
                 self.alpha_sigma
