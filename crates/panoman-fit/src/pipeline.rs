@@ -397,10 +397,13 @@ pub fn fit_frame(
 }
 
 /// What fails the quality check in an IK result (empty: passes): its keypoint residuals per
-/// group and the plausibility of its shape (α = the PCA projection of its rest mesh, see
+/// group (against the initializer's thresholds, [`QualityOptions::for_initializer`]) and the
+/// plausibility of its shape (α = the PCA projection of its rest mesh, see
 /// [`crate::quality`]); with a failure, the phenotype values on their bounds are noted.
 pub fn ik_problems(model: &PanoManModel, r: &IkResult, q: &QualityOptions) -> Vec<String> {
-    let mut p = q.keypoint_problems(&ik_group_residuals(r));
+    let mut p = q
+        .for_initializer()
+        .keypoint_problems(&ik_group_residuals(r));
     if r.rest.len() == model.n_vertices {
         let flat: Vec<f64> = r.rest.iter().flatten().copied().collect();
         p.extend(q.shape_problems(model, &model.shape.project(&flat)));

@@ -15,7 +15,8 @@
 //! ```
 //!
 //! i.e. 10 / 50 mm for exact keypoints (20× the measured good mean, 8× the good max) and
-//! 27 / 85 mm at σ = 5 mm. **Plausibility**: the shape coefficients α (PCA projection of the
+//! 27 / 85 mm at σ = 5 mm. The IK initializer is checked against twice these
+//! ([`QualityOptions::initializer_factor`]). **Plausibility**: the shape coefficients α (PCA projection of the
 //! initializer's rest shape) fail when some `|α_i|/σ_i` of a *leading* component (one that
 //! explains at least [`LEADING_VARIANCE`] = 1 % of the training variance; σ_i the PCA's
 //! standard deviation) exceeds [`QualityOptions::alpha_sigma`] (default 5: a Gaussian prior
@@ -50,6 +51,12 @@ pub struct QualityOptions {
     /// Retry a failed initializer from other starts ([`crate::pipeline::robust_ik`]). Default
     /// true.
     pub retry: bool,
+    /// Factor on all thresholds for the IK initializer (its check triggers the retries and,
+    /// if still failing, `converged: false`). Default 2: a person the rig cannot reproduce
+    /// exactly (the template mesh itself: IK body mean 10.1 mm on the full template, 11.2 mm
+    /// on the small one) is met by the final fit to 0.1–1.6 mm, while a wrong basin leaves
+    /// ≥ 30 mm.
+    pub initializer_factor: f64,
 }
 
 impl Default for QualityOptions {
@@ -62,6 +69,7 @@ impl Default for QualityOptions {
             noise_max_factor: 4.0,
             alpha_sigma: 5.0,
             retry: true,
+            initializer_factor: 2.0,
         }
     }
 }
@@ -72,6 +80,19 @@ impl QualityOptions {
         QualityOptions {
             keypoint_sigma: sigma.max(0.0),
             ..Self::default()
+        }
+    }
+
+    /// The options of the initializer's check: the residual thresholds scaled by
+    /// [`QualityOptions::initializer_factor`].
+    pub fn for_initializer(&self) -> Self {
+        let f = self.initializer_factor.max(1.0);
+        QualityOptions {
+            mean_mm: f * self.mean_mm,
+            max_mm: f * self.max_mm,
+            noise_mean_factor: f * self.noise_mean_factor,
+            noise_max_factor: f * self.noise_max_factor,
+            ..self.clone()
         }
     }
 

@@ -365,13 +365,9 @@ impl Fitter {
         q: &QualityOptions,
     ) -> FitOutput {
         let keypoint_residuals = keypoint_residuals(self.model.inner(), &c.keypoints, &r.posed);
-        // The final residuals (after a skeletal ICP, if any) decide, plus the shape check.
-        let mut problems = q.keypoint_problems(&keypoint_residuals);
-        problems.extend(
-            panoman_fit::pipeline::ik_problems(self.model.inner(), &r, q)
-                .into_iter()
-                .filter(|p| !p.contains("keypoint")),
-        );
+        // The IK is the result: its check (the initializer's thresholds, after a skeletal
+        // ICP if any) decides.
+        let mut problems = panoman_fit::pipeline::ik_problems(self.model.inner(), &r, q);
         if !problems.is_empty() && attempts.len() > 1 {
             problems.push(format!("{} initializer starts tried", attempts.len()));
         }
