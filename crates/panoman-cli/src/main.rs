@@ -1,7 +1,9 @@
 //! `panoman`: the command line of the panoman toolkit (PanoMan human model in Rust).
 //!
 //! Every command prints `--help` with an example, exits 0 only on success, and reports errors as
-//! one line `error: <file>: <what is wrong>`. Outputs are written atomically.
+//! one line `error: <file>: <what is wrong>`. Outputs are written atomically. A fit that was
+//! written but did not pass its quality check (`converged: false`) prints one line
+//! `warning: …` and exits 3 (`panoman fit`; `panoman track --strict`).
 
 mod commands;
 mod plot;
@@ -102,6 +104,11 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e.downcast_ref::<util::WarnExit>().is_some() => {
+            let w = e.downcast_ref::<util::WarnExit>().expect("checked");
+            eprintln!("warning: {}", w.message);
+            ExitCode::from(w.code)
+        }
         Err(e) => {
             eprintln!("error: {}", one_line(&e));
             ExitCode::FAILURE

@@ -127,3 +127,24 @@ pub fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
     }
     pb
 }
+
+/// Exit status of a fit whose result was written but did not pass the quality check
+/// (`converged: false` in report.json; `panoman fit`, `panoman track --strict`).
+pub const EXIT_NOT_CONVERGED: u8 = 3;
+
+/// A command that finished its outputs but ends with a warning and a non-zero exit status.
+#[derive(Debug)]
+pub struct WarnExit {
+    /// Exit status.
+    pub code: u8,
+    /// One-line warning (printed as `warning: …`).
+    pub message: String,
+}
+
+impl std::fmt::Display for WarnExit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for WarnExit {}

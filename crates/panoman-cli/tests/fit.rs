@@ -587,3 +587,120 @@ fn eval_small_configuration_writes_every_figure() {
     let html = std::fs::read_to_string(out.join("index.html")).unwrap();
     assert!(html.contains("twist_radius.png") && html.contains("error_map.png"));
 }
+
+/// The quality check (docs/design/shell-fit.md §7): a held-out person from exact keypoints
+/// passes on the first IK start; the same keypoints with the left wrist 0.5 m off cannot be
+/// met, so the initializer is retried from the other starts, and the fit, still returned, is
+/// flagged `converged: false` with a reason naming the body keypoints.
+#[test]
+fn quality_check_retries_and_flags_an_impossible_keypoint() {
+    let (_, data, model_path) = trained();
+    let (model, rig) = model_and_rig(model_path);
+    let ik = rig.ik_solver().unwrap();
+    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
+    let (truth, _) = &held_out(data, 1)[0];
+    let mut kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
+    let good = Constraints {
+        keypoints: kp.clone(),
+        ..Default::default()
+    };
+    let (_, fit) = cold_fit(&rig, &ik, &mut fitter, &good).unwrap();
+    let v = &fit.report.verdict;
+    assert!(v.converged, "{:?}", v.reason);
+    assert!(v.reason.is_none() && !v.retried && v.ik_attempts.len() == 1);
+    assert!(v.ik_attempts[0].chosen && v.ik_attempts[0].problems.is_empty());
+    // The shell stage did something: its LM steps were accepted.
+    let accepted: usize = fit.report.stages.iter().map(|s| s.accepted).sum();
+    assert!(accepted > 0, "{:?}", fit.report.stages);
+
+    let w = keypoint_index("l_wrist").unwrap();
+    kp.points.get_mut(&w).unwrap()[1] += 0.5;
+    let bad = Constraints {
+        keypoints: kp,
+        ..Default::default()
+    };
+    let (_, fit) = cold_fit(&rig, &ik, &mut fitter, &bad).unwrap();
+    let v = &fit.report.verdict;
+    assert!(!v.converged);
+    let reason = v.reason.as_deref().unwrap();
+    assert!(reason.contains("body keypoint"), "{reason}");
+    assert!(v.retried && v.ik_attempts.len() >= 6, "{:?}", v.ik_attempts);
+    assert_eq!(v.ik_attempts.iter().filter(|a| a.chosen).count(), 1);
+    assert!(v.ik_attempts.iter().all(|a| !a.problems.is_empty()));
+    assert!(fit.vertices.iter().flatten().all(|x| x.is_finite()));
+}
+
+/// The CLI side of the quality check: `panoman fit` writes its outputs for an impossible
+/// keypoint set but warns on one line and exits 3 (report.json: `converged: false`, a
+/// reason); `panoman track` flags the frame in summary.json, exits 0 with a warning, and 3
+/// with `--strict`; summary.json has the per-frame stages and the clip's step totals.
+#[test]
+fn cli_not_converged_fit_exits_3_and_track_flags_the_frame() {
+    let (dir, data, model_path) = trained();
+    let model = PanoManModel::load(model_path).unwrap();
+    let m = model_path.to_str().unwrap();
+    let (truth, _) = &held_out(data, 1)[0];
+    let frames = dir.join("frames-bad");
+    std::fs::create_dir_all(&frames).unwrap();
+    let mut kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
+    kp.write(&frames.join("f000.json")).unwrap();
+    let w = keypoint_index("l_wrist").unwrap();
+    kp.points.get_mut(&w).unwrap()[1] += 0.5;
+    let bad = frames.join("f001.json");
+    kp.write(&bad).unwrap();
+    let out = dir.join("fit-bad");
+    let o = panoman(&[
+        "fit",
+        "--model",
+        m,
+        "--keypoints",
+        bad.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(3), "{stderr}");
+    assert!(stderr.contains("warning:") && stderr.contains("did not converge"));
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    let rep: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(rep["converged"], false);
+    assert!(rep["reason"].as_str().unwrap().contains("keypoint"));
+    assert!(rep["ik_attempts"].as_array().unwrap().len() > 1);
+    assert!(out.join("mesh.obj").exists());
+
+    let track = dir.join("track-bad");
+    let args = |strict: bool| {
+        let mut a = vec![
+            "track",
+            "--model",
+            m,
+            "--frames",
+            frames.to_str().unwrap(),
+            "--out",
+            track.to_str().unwrap(),
+        ];
+        if strict {
+            a.push("--strict");
+        }
+        a.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let a: Vec<String> = args(false);
+    let o = panoman(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(o.status.code(), Some(0));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("1 of 2 frames did not converge"));
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(track.join("summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(s["not_converged"], 1);
+    assert_eq!(s["not_converged_frames"][0], "f001");
+    let pf = s["per_frame"].as_array().unwrap();
+    assert_eq!(pf[0]["converged"], true);
+    assert_eq!(pf[1]["converged"], false);
+    assert!(pf[0]["shell_stages"].as_array().unwrap().len() >= 2);
+    assert!(s["steps_accepted"].as_u64().unwrap() > 0);
+    assert!(s["steps_tried"].as_u64() >= s["steps_accepted"].as_u64());
+    let a: Vec<String> = args(true);
+    let o = panoman(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(o.status.code(), Some(3));
+}

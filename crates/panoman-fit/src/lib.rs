@@ -10,6 +10,7 @@ pub mod fit;
 pub mod icp;
 pub mod ik;
 pub mod pipeline;
+pub mod quality;
 
 pub use error::{FitError, Result};
 pub use fit::{

@@ -11,6 +11,8 @@ use crate::fit::{
 };
 use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences_on};
 use crate::ik::{IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget};
+use crate::quality::Verdict;
+use crate::quality::{IkAttempt, QualityOptions, ik_group_residuals, phenotype_at_bounds};
 use panoman_human::assets::AssetDir;
 use panoman_human::generator::{Generator, GeneratorOptions};
 use panoman_human::keypoints::{KeypointSet, load_or_build};
@@ -404,7 +406,7 @@ pub fn fit_frame(
         initial_state: warm.cloned(),
         ..ik_cfg.clone()
     };
-    let mut r = ik_fit(ik, c, &cfg)?;
+    let (mut r, attempts) = robust_ik(fitter.model(), ik, c, &cfg, &opts.quality)?;
     if c.points.is_some() {
         let icp = IkIcpOptions {
             // A warm-started frame keeps its phenotype basin.
@@ -418,8 +420,157 @@ pub fn fit_frame(
         r = ik_icp(rig, ik, c, ik_cfg, &r, &icp)?.0;
     }
     let init = init_of(&r, ik, rig.generator.bone_names());
-    let fit = fitter.fit(c, &init, opts)?;
+    let mut fit = fitter.fit(c, &init, opts)?;
+    let chosen = attempts.iter().find(|a| a.chosen);
+    let mut problems: Vec<String> = chosen
+        .map(|a| {
+            a.problems
+                .iter()
+                .map(|p| format!("initializer: {p}"))
+                .collect()
+        })
+        .unwrap_or_default();
+    problems.extend(fit.report.verdict.reason.take());
+    if !problems.is_empty() && attempts.len() > 1 {
+        problems.push(format!("{} initializer starts tried", attempts.len()));
+    }
+    fit.report.verdict = Verdict::from_problems(problems, &opts.quality, attempts);
     Ok((r, fit))
+}
+
+/// What fails the quality check in an IK result (empty: passes): its keypoint residuals per
+/// group (against the initializer's thresholds, [`QualityOptions::for_initializer`]) and the
+/// plausibility of its shape (α = the PCA projection of its rest mesh, see
+/// [`crate::quality`]); with a failure, the phenotype values on their bounds are noted.
+pub fn ik_problems(model: &PanoManModel, r: &IkResult, q: &QualityOptions) -> Vec<String> {
+    let mut p = q
+        .for_initializer()
+        .keypoint_problems(&ik_group_residuals(r));
+    if r.rest.len() == model.n_vertices {
+        let flat: Vec<f64> = r.rest.iter().flatten().copied().collect();
+        p.extend(q.shape_problems(model, &model.shape.project(&flat)));
+    }
+    let bounds = phenotype_at_bounds(r);
+    if !p.is_empty() && !bounds.is_empty() {
+        p.push(format!("phenotype on its bounds: {}", bounds.join(", ")));
+    }
+    p
+}
+
+/// The starts [`robust_ik`] retries: name, configuration, and whether the result is then
+/// continued (warm-started) with `cfg`'s own priors and phenotype fit.
+fn retry_starts(cfg: &IkConfig) -> Vec<(String, IkConfig, bool)> {
+    let cold = IkConfig {
+        initial_state: None,
+        ..cfg.clone()
+    };
+    let mut out = Vec::new();
+    if cfg.initial_state.is_some() {
+        out.push(("cold".to_string(), cold.clone(), false));
+    }
+    out.push((
+        "strong_priors".to_string(),
+        IkConfig {
+            pose_prior: 100.0 * cold.pose_prior,
+            phenotype_prior: 100.0 * cold.phenotype_prior,
+            face_unit_prior: 100.0 * cold.face_unit_prior,
+            ..cold.clone()
+        },
+        true,
+    ));
+    if cold.fit_phenotype {
+        out.push((
+            "mean_shape".to_string(),
+            IkConfig {
+                fit_phenotype: false,
+                initial_shape: None,
+                ..cold.clone()
+            },
+            true,
+        ));
+        for (m, w) in [(0.2, 0.2), (0.2, 0.8), (0.8, 0.2), (0.8, 0.8)] {
+            let mut shape = cold.initial_shape.clone().unwrap_or_default();
+            if let Some(v) = shape.phenotype.get_mut("muscle") {
+                *v = m;
+            }
+            if let Some(v) = shape.phenotype.get_mut("weight") {
+                *v = w;
+            }
+            out.push((
+                format!("phenotype m{m} w{w}"),
+                IkConfig {
+                    initial_shape: Some(shape),
+                    ..cold.clone()
+                },
+                false,
+            ));
+        }
+    }
+    out
+}
+
+/// The initializer with failure detection and recovery (docs/design/shell-fit.md §7): the IK
+/// of `cfg`; if it fails the quality check ([`ik_problems`]) and `q.retry`, the IK again from
+/// other starts (in parallel): cold (when `cfg` was warm-started), stronger priors (×100, then
+/// continued with `cfg`'s), the mean shape with the phenotype held (then continued with it
+/// fitted), and muscle × weight ∈ {0.2, 0.8}². Kept: among the results that pass (else among
+/// all) the one with the lowest keypoint term `Σ_k w_k |K_k − k̂_k|²`; the attempts are returned
+/// in order (the first is the plain IK), the kept one marked `chosen`.
+///
+/// # Errors
+/// As [`ik_fit`].
+pub fn robust_ik(
+    model: &PanoManModel,
+    ik: &IkSolver,
+    c: &Constraints,
+    cfg: &IkConfig,
+    q: &QualityOptions,
+) -> Result<(IkResult, Vec<IkAttempt>)> {
+    let first = ik_fit(ik, c, cfg)?;
+    let problems = ik_problems(model, &first, q);
+    let mut attempts = vec![IkAttempt::of("first", &first, problems)];
+    if attempts[0].problems.is_empty() || !q.retry {
+        attempts[0].chosen = true;
+        return Ok((first, attempts));
+    }
+    let starts = retry_starts(cfg);
+    let tried = starts
+        .par_iter()
+        .map(|(name, sc, cont)| {
+            let mut r = ik_fit(ik, c, sc)?;
+            if *cont {
+                let base = IkConfig {
+                    initial_state: Some(r.state.clone()),
+                    ..cfg.clone()
+                };
+                let its = r.iterations;
+                r = ik_fit(ik, c, &base)?;
+                r.iterations += its;
+            }
+            let p = ik_problems(model, &r, q);
+            Ok((IkAttempt::of(name, &r, p), r))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut results = vec![first];
+    for (a, r) in tried {
+        attempts.push(a);
+        results.push(r);
+    }
+    let data = |r: &IkResult| -> f64 {
+        r.residuals
+            .iter()
+            .map(|e| e.weight * e.distance * e.distance)
+            .sum()
+    };
+    let best = (0..results.len())
+        .min_by(|&a, &b| {
+            let ka = (!attempts[a].problems.is_empty(), data(&results[a]));
+            let kb = (!attempts[b].problems.is_empty(), data(&results[b]));
+            ka.partial_cmp(&kb).unwrap_or(std::cmp::Ordering::Equal)
+        })
+        .expect("at least one attempt");
+    attempts[best].chosen = true;
+    Ok((results.swap_remove(best), attempts))
 }
 
 /// Frame-to-frame state of a tracked sequence (paper §5.3 for sequences; Total Capture's

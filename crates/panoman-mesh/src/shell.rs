@@ -291,8 +291,16 @@ impl ShellTargets {
 /// Controls of the Levenberg–Marquardt iteration (docs/design/shell-fit.md §3.4).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShellOptions {
-    /// Iteration cap (linear solves, accepted or not). Default 10.
+    /// Iteration budget. With `retry_rejected = 0` it caps the linear solves, accepted or
+    /// not; otherwise see `retry_rejected`. Default 10.
     pub max_iterations: usize,
+    /// Rejected steps retried without using up the budget: after a rejected step μ is raised
+    /// (Nielsen's rule, ×2, ×4, ×8, …) and the step re-solved; only the
+    /// `(retry_rejected + 1)`-th rejection in a row uses one unit of `max_iterations`. So a
+    /// budget of one iteration still ends with an accepted step unless `retry_rejected + 1`
+    /// damping increases in a row fail (μ then grew by 2^((r+1)(r+2)/2)). 0 (default): every
+    /// solve counts, the classic cap.
+    pub retry_rejected: usize,
     /// Stop when the relative energy decrease `(E − E_new)/E` of accepted steps is below this
     /// twice in a row. Default 1e−6.
     pub rel_tol: f64,
@@ -314,6 +322,7 @@ impl Default for ShellOptions {
     fn default() -> Self {
         Self {
             max_iterations: 10,
+            retry_rejected: 0,
             rel_tol: 1e-6,
             step_tol: 1e-10,
             energy_tol: 1e-24,
@@ -333,7 +342,7 @@ pub enum ShellStop {
     SmallDecrease,
     /// `‖δ‖∞` below `step_tol` relative to `‖x‖∞`.
     SmallStep,
-    /// Iteration cap reached.
+    /// Iteration budget used up (see [`ShellOptions::retry_rejected`]).
     MaxIterations,
     /// μ exceeded its cap (no decrease possible at machine precision).
     DampingOverflow,
@@ -342,7 +351,7 @@ pub enum ShellStop {
 /// Outcome of [`ShellSolver::solve`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShellReport {
-    /// Iterations (linear solves) performed.
+    /// Iterations (linear solves) tried, accepted or rejected.
     pub iterations: usize,
     /// Accepted iterations.
     pub accepted: usize,
@@ -1045,6 +1054,9 @@ impl ShellSolver {
         let mut mu = opts.mu_init.max(MU_MIN);
         let mut nu = 2.0;
         let mut small = 0;
+        // Budget used (accepted steps, plus one per `retry_rejected + 1` rejections in a row)
+        // and the current run of rejections.
+        let (mut used, mut rejected_run) = (0usize, 0usize);
         let mut delta = std::mem::take(&mut self.delta);
         let mut x_trial = std::mem::take(&mut self.x_trial);
         let result = (|| -> Result<()> {
@@ -1052,7 +1064,7 @@ impl ShellSolver {
                 report.stop = ShellStop::Converged;
                 return Ok(());
             }
-            while report.iterations < opts.max_iterations {
+            while used < opts.max_iterations {
                 let t_it = Instant::now();
                 report.iterations += 1;
                 let accepted = match self.step(mu, opts.parallel_factor, &mut delta) {
@@ -1089,8 +1101,10 @@ impl ShellSolver {
                     Some((e_new, rho)) => {
                         x.copy_from_slice(&x_trial);
                         let rel = (e - e_new) / e;
+                        used += 1;
+                        rejected_run = 0;
                         // No re-linearisation after the last iteration: E(x) is e_new.
-                        e = if report.iterations < opts.max_iterations {
+                        e = if used < opts.max_iterations {
                             self.linearize_unchecked(targets, x, opts.degenerate_height)?
                         } else {
                             self.linearized = false;
@@ -1104,6 +1118,11 @@ impl ShellSolver {
                     None => {
                         mu *= nu;
                         nu *= 2.0;
+                        rejected_run += 1;
+                        if rejected_run > opts.retry_rejected {
+                            used += 1;
+                            rejected_run = 0;
+                        }
                     }
                 }
                 report.iteration_seconds.push(t_it.elapsed().as_secs_f64());

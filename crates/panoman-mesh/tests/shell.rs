@@ -488,3 +488,41 @@ fn dense_support_matches_the_assembled_clique() {
         .fold(0.0, f64::max);
     assert!(dmax < 1e-8 * ml, "solutions differ by {dmax:e}");
 }
+
+/// A one-iteration budget whose first (almost undamped) step is rejected: without retries the
+/// solve ends with nothing accepted; with `retry_rejected` μ is raised and the step re-solved
+/// until one lowers the energy, and the report counts the tries.
+#[test]
+fn rejected_steps_are_retried_within_the_budget() {
+    let (truth, topo) = deformed_sphere(2);
+    let targets = ShellTargets::from_positions(&topo, &truth, 1.0).unwrap();
+    let sigma = 0.6 * mean_edge(&topo, &truth);
+    let start = perturb(&truth, sigma, 7);
+    let mut solver = ShellSolver::new(&topo).unwrap();
+    let base = ShellOptions {
+        max_iterations: 1,
+        mu_init: 1e-10,
+        ..Default::default()
+    };
+    let mut x = start.clone();
+    let plain = solver.solve(&targets, &mut x, &base).unwrap();
+    assert_eq!(plain.iterations, 1);
+    assert_eq!(plain.accepted, 0, "the undamped step should be rejected");
+    assert_eq!(x, start);
+    let mut y = start.clone();
+    let retried = solver
+        .solve(
+            &targets,
+            &mut y,
+            &ShellOptions {
+                retry_rejected: 30,
+                ..base
+            },
+        )
+        .unwrap();
+    assert_eq!(retried.accepted, 1, "{retried:?}");
+    assert!(retried.iterations > 1);
+    assert_eq!(retried.energies.len(), retried.iterations + 1);
+    assert!(retried.energies.last().unwrap() < &retried.energies[0]);
+    assert_eq!(retried.stop, ShellStop::MaxIterations);
+}

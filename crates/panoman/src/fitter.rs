@@ -5,7 +5,8 @@ use std::time::Instant;
 
 use panoman_fit::fit::{FitOptions, GroupResidual, StageReport, keypoint_residuals};
 use panoman_fit::ik::{IkConfig, IkResult, IkSolver};
-use panoman_fit::{Constraints, IkIcpOptions, Rig, fit_frame, ik_config_for_noise, ik_fit, ik_icp};
+use panoman_fit::quality::{IkAttempt, QualityOptions, Verdict};
+use panoman_fit::{Constraints, IkIcpOptions, Rig, fit_frame, ik_config_for_noise, ik_icp};
 use panoman_human::assets;
 use panoman_human::params::GeneratorParams;
 use panoman_mesh::geom::V3;
@@ -95,8 +96,14 @@ impl FitRequest {
         FitOptions {
             keypoint_weight: self.keypoint_weight,
             motion_weight: self.motion_weight,
+            quality: self.quality(),
             ..FitOptions::default()
         }
+    }
+
+    /// The quality thresholds of this request (noise level `keypoint_sigma`).
+    pub(crate) fn quality(&self) -> QualityOptions {
+        QualityOptions::for_noise(self.keypoint_sigma)
     }
 }
 
@@ -171,6 +178,26 @@ pub struct FitReport {
     pub total_seconds: f64,
     /// Keypoint residual per group (`body`, `face`, `left_hand`, `right_hand`; mm).
     pub keypoint_residuals: BTreeMap<String, GroupResidual>,
+    /// The quality check (flattened into report.json): `converged`, `reason` when not,
+    /// the `thresholds` (mm), whether the initializer was `retried` and its `ik_attempts`
+    /// (docs/design/shell-fit.md §7). A fit with `converged: false` is still returned; the
+    /// CLI warns and exits 3.
+    #[serde(flatten)]
+    pub verdict: Verdict,
+}
+
+impl FitReport {
+    /// Whether the fit passed the quality check ([`FitReport::verdict`]).
+    pub fn converged(&self) -> bool {
+        self.verdict.converged
+    }
+
+    /// Shell LM steps (tried, accepted) over all stages.
+    pub fn steps(&self) -> (usize, usize) {
+        self.stages
+            .iter()
+            .fold((0, 0), |(t, a), s| (t + s.iterations, a + s.accepted))
+    }
 }
 
 /// The result of one fit.
@@ -291,8 +318,8 @@ impl Fitter {
         let ikc = ik_config_for_noise(req.keypoint_sigma);
         match req.method {
             Method::Lbs => {
-                let r = self.lbs(&c, &ikc, None)?;
-                Ok(self.lbs_output(&c, r))
+                let (r, attempts) = self.lbs(&c, &ikc, &req.quality(), None)?;
+                Ok(self.lbs_output(&c, r, attempts, &req.quality()))
             }
             Method::PanoMan => {
                 let (r, fit) = fit_frame(
@@ -309,25 +336,41 @@ impl Fitter {
         }
     }
 
-    /// The LBS rig's IK (warm-started from `warm`), refined on the scan by skeletal ICP.
+    /// The LBS rig's IK (warm-started from `warm`) with the quality check and retries
+    /// ([`panoman_fit::pipeline::robust_ik`]), refined on the scan by skeletal ICP.
     pub(crate) fn lbs(
         &self,
         c: &Constraints,
         ikc: &IkConfig,
+        q: &QualityOptions,
         warm: Option<&panoman_fit::ik::IkState>,
-    ) -> Result<IkResult> {
+    ) -> Result<(IkResult, Vec<IkAttempt>)> {
         let cfg = IkConfig {
             initial_state: warm.cloned(),
             ..ikc.clone()
         };
-        let mut r = ik_fit(&self.ik, c, &cfg)?;
+        let (mut r, attempts) =
+            panoman_fit::pipeline::robust_ik(self.model.inner(), &self.ik, c, &cfg, q)?;
         if c.points.is_some() {
             r = ik_icp(&self.rig, &self.ik, c, ikc, &r, &IkIcpOptions::default())?.0;
         }
-        Ok(r)
+        Ok((r, attempts))
     }
 
-    pub(crate) fn lbs_output(&self, c: &Constraints, r: IkResult) -> FitOutput {
+    pub(crate) fn lbs_output(
+        &self,
+        c: &Constraints,
+        r: IkResult,
+        attempts: Vec<IkAttempt>,
+        q: &QualityOptions,
+    ) -> FitOutput {
+        let keypoint_residuals = keypoint_residuals(self.model.inner(), &c.keypoints, &r.posed);
+        // The IK is the result: its check (the initializer's thresholds, after a skeletal
+        // ICP if any) decides.
+        let mut problems = panoman_fit::pipeline::ik_problems(self.model.inner(), &r, q);
+        if !problems.is_empty() && attempts.len() > 1 {
+            problems.push(format!("{} initializer starts tried", attempts.len()));
+        }
         let report = FitReport {
             method: Method::Lbs,
             setup_seconds: None,
@@ -335,7 +378,8 @@ impl Fitter {
             stages: Vec::new(),
             fit_seconds: 0.0,
             total_seconds: r.seconds,
-            keypoint_residuals: keypoint_residuals(self.model.inner(), &c.keypoints, &r.posed),
+            keypoint_residuals,
+            verdict: Verdict::from_problems(problems, q, attempts),
         };
         FitOutput {
             vertices: r.posed,
@@ -354,6 +398,7 @@ impl Fitter {
             fit_seconds: fit.report.seconds,
             total_seconds: r.seconds + fit.report.seconds,
             keypoint_residuals: fit.report.keypoint_residuals,
+            verdict: fit.report.verdict,
         };
         FitOutput {
             vertices: fit.vertices,

@@ -51,6 +51,7 @@ impl Tracker {
         let warm = FitOptions {
             keypoint_weight: cold.keypoint_weight,
             motion_weight: cold.motion_weight,
+            quality: cold.quality.clone(),
             ..warm_fit_options()
         };
         let sequence = Sequence::new(cold, warm, ik, ik_start == IkStart::Cold);
@@ -87,9 +88,10 @@ impl Tracker {
                     IkStart::Warm => self.lbs_state.as_ref(),
                     IkStart::Cold => None,
                 };
-                let r = self.fitter.lbs(&c, &ikc, warm)?;
+                let q = self.request.quality();
+                let (r, attempts) = self.fitter.lbs(&c, &ikc, &q, warm)?;
                 self.lbs_state = Some(r.state.clone());
-                self.fitter.lbs_output(&c, r)
+                self.fitter.lbs_output(&c, r, attempts, &q)
             }
             Method::PanoMan => {
                 let (rig, ik, shell) = self.fitter.parts();

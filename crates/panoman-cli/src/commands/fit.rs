@@ -29,8 +29,12 @@ pub enum Baseline {
     panoman fit --model M.safetensors --keypoints K.json --points scan.ply --out fit/\n  \
     panoman fit --model M.safetensors --keypoints K.json --baseline lbs --out lbs/\n\n\
     Writes DIR/mesh.obj, DIR/params.json (α, β and the rigid motion; the rig's parameters\n\
-    for --baseline lbs) and DIR/report.json (time per stage, iterations, keypoint residual\n\
-    per group in mm). Handles: {\"handles\": [{\"vertex\": 123, \"position\": [x, y, z],\n\
+    for --baseline lbs) and DIR/report.json (time per stage, LM steps tried/accepted and\n\
+    energies per stage, keypoint residual per group in mm, `converged` and `reason`).\n\
+    Exit status: 0 a converged fit; 3 the outputs were written but the fit failed its\n\
+    quality check (keypoint residual above the thresholds of docs/design/shell-fit.md §7\n\
+    after retrying the initializer, or an implausible shape; a one-line warning names why);\n\
+    1 an error. Handles: {\"handles\": [{\"vertex\": 123, \"position\": [x, y, z],\n\
     \"weight\": 1}]}. --params fixes α and the β blocks it gives (parameter edits).\n\n\
     Keypoints (TC-127 JSON): {\"keypoints\": {\"l_wrist\": [x, y, z], ...}, \"weights\": {\"l_wrist\": 0.5}}\n\
     in metres, any subset of the 127 names (15 body, face_00..face_69 = iBUG-68 + 2 pupils, 2x21\n\
@@ -91,7 +95,10 @@ pub struct FitArgs {
     panoman track --model M.safetensors --frames kp_frames/ --out track/\n\n\
     Fits every *.json keypoint file of --frames in name order: the first frame cold (IK +\n\
     fit), the next ones with the IK warm-started from the previous frame and temporal terms\n\
-    on β and the vertices. Writes DIR/<frame>.obj, DIR/<frame>.params.json and DIR/summary.json.")]
+    on β and the vertices. Writes DIR/<frame>.obj, DIR/<frame>.params.json and DIR/summary.json\n\
+    (per frame: time, LM steps tried/accepted and energies per stage, keypoint residuals,\n\
+    `converged`/`reason`; totals over the clip). Frames that fail the quality check are\n\
+    flagged there and counted in a warning; the exit status is 0, or 3 with --strict.")]
 pub struct TrackArgs {
     /// Model file.
     #[arg(long)]
@@ -115,6 +122,9 @@ pub struct TrackArgs {
     /// previous frame (slower, robust to large motion between frames).
     #[arg(long)]
     pub cold: bool,
+    /// Exit with status 3 when any frame fails the quality check (default: warn, exit 0).
+    #[arg(long)]
+    pub strict: bool,
     /// Asset directory.
     #[arg(long)]
     pub assets: Option<PathBuf>,
@@ -216,6 +226,21 @@ pub fn run(a: FitArgs) -> Result<()> {
     write_params(&a.out.join("params.json"), &out, &fitter)?;
     write_json(&a.out.join("report.json"), &out.report)?;
     print_summary(&out.report, setup_s, &a.out);
+    if !out.report.converged() {
+        return Err(crate::util::WarnExit {
+            code: crate::util::EXIT_NOT_CONVERGED,
+            message: format!(
+                "{}: the fit did not converge ({}); outputs written, see report.json",
+                a.out.display(),
+                out.report
+                    .verdict
+                    .reason
+                    .as_deref()
+                    .unwrap_or("unknown reason")
+            ),
+        }
+        .into());
+    }
     Ok(())
 }
 
@@ -229,8 +254,14 @@ fn print_summary(rep: &FitReport, setup_s: f64, out: &Path) {
         Method::PanoMan => "panoman",
         Method::Lbs => "lbs",
     };
+    let (tried, accepted) = rep.steps();
+    let steps = if rep.method == Method::PanoMan {
+        format!("; shell LM steps {accepted}/{tried} accepted")
+    } else {
+        String::new()
+    };
     println!(
-        "{}: {method} fit in {:.2} s (setup {:.2} s); keypoint residual (mm): {}",
+        "{}: {method} fit in {:.2} s (setup {:.2} s); keypoint residual (mm): {}{steps}",
         out.display(),
         rep.total_seconds,
         setup_s,
@@ -273,6 +304,7 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
     std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
     let bar = crate::util::progress_bar(frames.len() as u64, "track");
     let mut rows = Vec::new();
+    let mut totals = TrackTotals::default();
     for (f, (path, t)) in frames.iter().zip(&targets).enumerate() {
         let stem = path
             .file_stem()
@@ -286,17 +318,12 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
             &out,
             tracker.fitter(),
         )?;
-        let mut st = serde_json::Map::new();
-        st.insert("ik".into(), out.report.ik.seconds.into());
-        for s in &out.report.stages {
-            st.insert(s.name.clone(), s.seconds.into());
-        }
         io::write_mesh(
             &a.out.join(format!("{stem}.obj")),
-            &TriMesh::new(out.vertices, model.faces().to_vec()),
+            &TriMesh::new(out.vertices.clone(), model.faces().to_vec()),
         )?;
-        rows.push(json!({"frame": stem, "seconds": out.report.total_seconds,
-                         "stages": st, "keypoint_residuals": out.report.keypoint_residuals}));
+        totals.add(&stem, &out.report);
+        rows.push(frame_row(&stem, &out.report));
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -312,6 +339,12 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
         "frames": rows.len(),
         "first_frame_seconds": times[0],
         "warm_seconds": {"median": med, "min": min, "max": max},
+        "steps_tried": totals.tried,
+        "steps_accepted": totals.accepted,
+        "frames_with_accepted_steps": totals.frames_accepting,
+        "not_converged": totals.not_converged.len(),
+        "not_converged_frames": totals.not_converged,
+        "ik_retried": totals.retried,
         "per_frame": rows,
     });
     write_json(&a.out.join("summary.json"), &summary)?;
@@ -324,5 +357,62 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
         min * 1e3,
         max * 1e3
     );
+    if !totals.not_converged.is_empty() {
+        let message = format!(
+            "{}: {} of {} frames did not converge ({}); see not_converged_frames in summary.json",
+            a.out.display(),
+            totals.not_converged.len(),
+            rows.len(),
+            totals.not_converged.join(", ")
+        );
+        if a.strict {
+            return Err(crate::util::WarnExit {
+                code: crate::util::EXIT_NOT_CONVERGED,
+                message,
+            }
+            .into());
+        }
+        eprintln!("warning: {message}");
+    }
     Ok(())
+}
+
+/// Totals of a tracked clip for summary.json.
+#[derive(Default)]
+struct TrackTotals {
+    tried: usize,
+    accepted: usize,
+    frames_accepting: usize,
+    retried: usize,
+    not_converged: Vec<String>,
+}
+
+impl TrackTotals {
+    fn add(&mut self, stem: &str, rep: &FitReport) {
+        let (t, a) = rep.steps();
+        self.tried += t;
+        self.accepted += a;
+        self.frames_accepting += usize::from(a > 0);
+        self.retried += usize::from(rep.verdict.retried);
+        if !rep.converged() {
+            self.not_converged.push(stem.to_string());
+        }
+    }
+}
+
+/// One frame of summary.json: time, the IK and shell stages (time, iterations, steps
+/// tried/accepted, energies or IK costs), keypoint residuals and the quality check.
+fn frame_row(stem: &str, rep: &FitReport) -> serde_json::Value {
+    let mut st = serde_json::Map::new();
+    st.insert("ik".into(), rep.ik.seconds.into());
+    for s in &rep.stages {
+        st.insert(s.name.clone(), s.seconds.into());
+    }
+    let (tried, accepted) = rep.steps();
+    json!({"frame": stem, "seconds": rep.total_seconds, "stages": st,
+           "ik_stages": rep.ik.stages, "shell_stages": rep.stages,
+           "steps_tried": tried, "steps_accepted": accepted,
+           "keypoint_residuals": rep.keypoint_residuals,
+           "converged": rep.verdict.converged, "reason": rep.verdict.reason,
+           "ik_retried": rep.verdict.retried})
 }

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use super::fitting::StageTimes;
 use super::metrics::{PartErrors, mean_of, part_errors};
-use super::summary::{ClipSummary, MedianMinMax};
+use super::summary::{ClipSummary, FitStats, MedianMinMax};
 use super::{Bench, EvalPreset, EvalProgress, MeshTriple};
 use crate::error::Result;
 
@@ -57,6 +57,7 @@ pub(crate) fn run(
     let mut warm_times = Vec::new();
     let mut warm_stage_times = StageTimes::new();
     let mut map_frame = None;
+    let mut stats = FitStats::default();
     for (f, truth) in truths.iter().enumerate() {
         let c = Constraints {
             keypoints: KeypointsFile::from_all(&b.model.inner().keypoints.evaluate(truth)),
@@ -85,9 +86,14 @@ pub(crate) fn run(
                 .or_default()
                 .push(ikr.seconds);
         }
+        let (pe, le) = (
+            part_errors(&fit.vertices, truth, &b.groups),
+            part_errors(&lbs.posed, truth, &b.groups),
+        );
+        stats.add(&fit, &ikr.posed, pe.all_mean, le.all_mean);
         frames.push(ClipFrame {
-            panoman: part_errors(&fit.vertices, truth, &b.groups),
-            lbs: part_errors(&lbs.posed, truth, &b.groups),
+            panoman: pe,
+            lbs: le,
             panoman_s: secs,
             lbs_s: lbs.seconds,
         });
@@ -114,6 +120,7 @@ pub(crate) fn run(
             lbs: mean_of(&lbs),
             panoman: mean_of(&pm),
             warm_s,
+            stats,
         },
         frames,
         warm_stage_times,

@@ -8,7 +8,7 @@ use panoman_human::keypoints::KeypointsFile;
 use panoman_mesh::geom::V3;
 
 use super::metrics::{Noise, PartErrors, mean_of, part_errors, to_v3};
-use super::summary::{HeldOutFits, MeanMax, PerMethod};
+use super::summary::{FitStats, HeldOutFits, MeanMax, PerMethod};
 use super::{Bench, EvalPreset, EvalProgress, MeshTriple};
 use crate::error::{Error, Result};
 
@@ -87,6 +87,11 @@ pub(crate) fn run(
         fits: Vec::new(),
     };
     let mut kp_res = ResidualSums::new();
+    let (mut stats_exact, mut stats_noisy) = (FitStats::default(), FitStats::default());
+    let noisy_opts = panoman_fit::FitOptions {
+        quality: panoman_fit::quality::QualityOptions::for_noise(0.005),
+        ..b.opts.clone()
+    };
     let total = 2 * pick.len();
     for (i, &r) in pick.iter().enumerate() {
         let truth = to_v3(b.ds.vertices(r)?);
@@ -106,11 +111,23 @@ pub(crate) fn run(
             } else {
                 b.ikc.clone()
             };
-            let (ikr, fit) = fit_frame(&b.rig, &b.ik, &mut b.fitter, &c, &ikc, &b.opts, None)?;
+            let opts = if is_noisy { &noisy_opts } else { &b.opts };
+            let (ikr, fit) = fit_frame(&b.rig, &b.ik, &mut b.fitter, &c, &ikc, opts, None)?;
             let errors = PerMethod {
                 lbs: part_errors(&ikr.posed, &truth, &b.groups),
                 panoman: part_errors(&fit.vertices, &truth, &b.groups),
             };
+            let st = if is_noisy {
+                &mut stats_noisy
+            } else {
+                &mut stats_exact
+            };
+            st.add(
+                &fit,
+                &ikr.posed,
+                errors.panoman.all_mean,
+                errors.lbs.all_mean,
+            );
             progress(EvalProgress::Step {
                 done: 2 * i + 1 + usize::from(is_noisy),
                 total,
@@ -156,6 +173,8 @@ pub(crate) fn run(
         noise_5mm: per_method_mean(&noise_5mm),
         people: pick.len(),
         per_person_exact: exact,
+        stats_exact,
+        stats_noise_5mm: stats_noisy,
     };
     Ok(out)
 }

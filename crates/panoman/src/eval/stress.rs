@@ -6,7 +6,8 @@
 //! fitted from its exact TC-127 keypoints by the LBS rig (the IK) and by PanoMan (the shell
 //! fit from that IK), and reported side by side with the per-vertex error, the keypoint
 //! residual, what the shell stage did (steps tried/accepted) and the failure detector's
-//! verdict. Twist cases add the forearm's cross-section radius over the person's true rest and
+//! verdict ([`panoman_fit::quality::Verdict`]: converged or the reason, and whether the
+//! initializer was retried). Twist cases add the forearm's cross-section radius over the person's true rest and
 //! the errors over the shoulder region and the hand, where the ground truth is not collapsed.
 //!
 //! The cases are drawn from their own random streams ([`STRESS_DOMAIN`]), so they are new
@@ -32,10 +33,6 @@ use crate::error::{Error, Result};
 
 /// Random-stream domain of the stress cases (distinct from the synthesis and clip domains).
 pub const STRESS_DOMAIN: u64 = 0x5743_5353;
-
-/// Keypoint residual (mean over the given keypoints, mm) above which a fit from exact
-/// keypoints counts as failed in the stress table when the fit reports no verdict itself.
-pub const STRESS_RESIDUAL_MM: f64 = 10.0;
 
 /// What the stress set gives the summary and the renders.
 pub(crate) struct StressRun {
@@ -381,17 +378,6 @@ fn shell_steps(fit: &FitResult) -> (usize, usize) {
         .fold((0, 0), |(t, a), s| (t + s.iterations, a + s.accepted))
 }
 
-/// The failure detector's verdict on a fit: `Ok` or the reason it failed.
-fn verdict(residual_mm: f64) -> std::result::Result<(), String> {
-    if residual_mm.is_finite() && residual_mm <= STRESS_RESIDUAL_MM {
-        Ok(())
-    } else {
-        Err(format!(
-            "mean keypoint residual {residual_mm:.1} mm > {STRESS_RESIDUAL_MM} mm on exact keypoints"
-        ))
-    }
-}
-
 /// Fits one case and measures it.
 fn run_case(b: &mut Bench, spec: &Spec) -> Result<(StressCase, MeshTriple)> {
     let g = b.rig.generator.clone();
@@ -415,7 +401,7 @@ fn run_case(b: &mut Bench, spec: &Spec) -> Result<(StressCase, MeshTriple)> {
         panoman: residual_mm(b, &c, &fit.vertices),
     };
     let (tried, accepted) = shell_steps(&fit);
-    let v = verdict(residual.panoman);
+    let verdict = fit.report.verdict.clone();
     let meshes = MeshTriple {
         truth,
         panoman: fit.vertices,
@@ -439,8 +425,9 @@ fn run_case(b: &mut Bench, spec: &Spec) -> Result<(StressCase, MeshTriple)> {
                 .zip(&meshes.lbs)
                 .map(|(p, q)| norm(sub(*p, *q)))
                 .fold(0.0, f64::max),
-        converged: v.is_ok(),
-        reason: v.err(),
+        converged: verdict.converged,
+        reason: verdict.reason,
+        retried: verdict.retried,
         seconds,
         twist,
     };

@@ -69,6 +69,8 @@ pub struct StressSummary {
     pub flagged: usize,
     /// Cases whose shell stage accepted at least one step.
     pub cases_with_accepted_steps: usize,
+    /// Cases whose initializer was retried.
+    pub retried: usize,
 }
 
 impl StressSummary {
@@ -104,6 +106,7 @@ impl StressSummary {
             }),
             flagged: count(&|c| !c.converged),
             cases_with_accepted_steps: count(&|c| c.shell_steps_accepted > 0),
+            retried: count(&|c| c.retried),
             cases,
         }
     }
@@ -131,6 +134,9 @@ pub struct StressCase {
     pub converged: bool,
     /// Why the detector flagged it (`null` when converged).
     pub reason: Option<String>,
+    /// Whether the initializer was retried from other starts (its first result failed the
+    /// quality check).
+    pub retried: bool,
     /// IK + shell fit (s).
     pub seconds: f64,
     /// Twist measures of a twist case.
@@ -210,6 +216,74 @@ pub struct HeldOutFits {
     pub people: usize,
     /// Exact keypoints, per person.
     pub per_person_exact: Vec<PerMethod<PartErrors>>,
+    /// What the PanoMan fits did, exact keypoints.
+    #[serde(default)]
+    pub stats_exact: FitStats,
+    /// What the PanoMan fits did, 5 mm noise.
+    #[serde(default)]
+    pub stats_noise_5mm: FitStats,
+}
+
+/// What a set of PanoMan fits did: shell LM steps, the quality check, and how the fits
+/// compare with their LBS initializer.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct FitStats {
+    /// Fits (frames).
+    pub fits: usize,
+    /// Shell LM steps tried over all fits and stages.
+    pub steps_tried: usize,
+    /// Shell LM steps accepted.
+    pub steps_accepted: usize,
+    /// Fits with at least one accepted step.
+    pub fits_with_accepted_steps: usize,
+    /// Fits whose vertices differ from their IK initializer's (by more than 1 µm somewhere).
+    pub differs_from_lbs: usize,
+    /// Fits whose mean vertex error is below the LBS baseline's.
+    pub lower_error_than_lbs: usize,
+    /// Fits flagged `converged: false`.
+    pub not_converged: usize,
+    /// Fits whose initializer was retried from other starts.
+    pub ik_retried: usize,
+    /// The distinct reasons of the fits flagged (at most 10).
+    #[serde(default)]
+    pub reasons: Vec<String>,
+}
+
+impl FitStats {
+    /// Counts one fit: its report, its initializer's vertices, and the mean vertex errors
+    /// (mm) of PanoMan and of the LBS baseline.
+    pub(crate) fn add(
+        &mut self,
+        fit: &panoman_fit::FitResult,
+        init: &[[f64; 3]],
+        panoman_mm: f64,
+        lbs_mm: f64,
+    ) {
+        let (t, a) = fit
+            .report
+            .stages
+            .iter()
+            .fold((0, 0), |(t, a), s| (t + s.iterations, a + s.accepted));
+        self.fits += 1;
+        self.steps_tried += t;
+        self.steps_accepted += a;
+        self.fits_with_accepted_steps += usize::from(a > 0);
+        let differs = fit
+            .vertices
+            .iter()
+            .zip(init)
+            .any(|(x, y)| (0..3).any(|c| (x[c] - y[c]).abs() > 1e-6));
+        self.differs_from_lbs += usize::from(differs);
+        self.lower_error_than_lbs += usize::from(panoman_mm < lbs_mm);
+        self.not_converged += usize::from(!fit.report.verdict.converged);
+        self.ik_retried += usize::from(fit.report.verdict.retried);
+        if let Some(r) = &fit.report.verdict.reason
+            && self.reasons.len() < 10
+            && !self.reasons.contains(r)
+        {
+            self.reasons.push(r.clone());
+        }
+    }
 }
 
 /// `clip`: a held-out synthetic clip; PanoMan tracked with warm starts, the LBS rig fitted per
@@ -226,6 +300,9 @@ pub struct ClipSummary {
     pub panoman: PartErrors,
     /// PanoMan time of the warm-started frames (all but the first).
     pub warm_s: MedianMinMax,
+    /// What the PanoMan frames did (LM steps, quality check, comparison with LBS).
+    #[serde(default)]
+    pub stats: FitStats,
 }
 
 /// `twist`: limbs twisted about their bone by the LBS rig, fitted from their keypoints.
