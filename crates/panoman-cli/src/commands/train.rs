@@ -44,6 +44,9 @@ pub struct TrainArgs {
     /// Override the preset's held-out rows per kind of the evaluation (0 = all).
     #[arg(long)]
     pub eval_rows: Option<usize>,
+    /// With --evaluate-only: skip the Fig. 7 curves (the representation error only).
+    #[arg(long, requires = "evaluate_only")]
+    pub skip_curves: bool,
 }
 
 /// Runs `panoman train`.
@@ -118,8 +121,29 @@ pub fn run(a: TrainArgs) -> Result<()> {
     };
     let topo_name = model.topology_name.clone();
     let model = std::sync::Arc::new(model);
-    let eval = evaluate(&model, &ds, &regions, &cfg, &mut stage)
-        .with_context(|| a.data.display().to_string())?;
+    let eval = if a.skip_curves {
+        let t = Instant::now();
+        let gn = panoman_model::model::GnOptions::default();
+        let repr = panoman_model::train::evaluate_representation(
+            &model,
+            &ds,
+            &regions,
+            cfg.eval_rows_per_kind,
+            &gn,
+            &mut stage,
+        )?;
+        panoman_model::train::Evaluation {
+            representation_error: repr,
+            timings: panoman_model::train::EvaluationTimings {
+                evaluation_s: t.elapsed().as_secs_f64(),
+                curves_s: 0.0,
+            },
+            curves: Vec::new(),
+        }
+    } else {
+        evaluate(&model, &ds, &regions, &cfg, &mut stage)
+            .with_context(|| a.data.display().to_string())?
+    };
     stage("");
     pb.finish_and_clear();
     let mut report = base_report;
@@ -130,7 +154,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
     // Fig. 7: CSV + PNG.
     let csv_path = PathBuf::from(format!("{}.fig7.csv", stem.display()));
     let png_path = PathBuf::from(format!("{}.fig7.png", stem.display()));
-    component_curves_files(&csv_path, &png_path, &eval.curves)?;
+    if !a.skip_curves {
+        component_curves_files(&csv_path, &png_path, &eval.curves)?;
+    }
     let ev = &eval.representation_error;
     println!(
         "{}: {} model ({} shape, β {}), trained in {:.1} s",
