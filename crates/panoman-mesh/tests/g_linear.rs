@@ -7,13 +7,7 @@ use panoman_mesh::geom::V3;
 use panoman_mesh::{GWorkspace, Gauge, Reconstructor, RestGeometry, Rla, Topology};
 
 /// `g(ℓ, φ)` with a tight frame solve (so that finite differences see the minimiser).
-fn g(
-    rec: &Reconstructor,
-    ws: &mut GWorkspace,
-    l: &[f64],
-    a: &[f64],
-    gauge: &Gauge,
-) -> Vec<V3> {
+fn g(rec: &Reconstructor, ws: &mut GWorkspace, l: &[f64], a: &[f64], gauge: &Gauge) -> Vec<V3> {
     let mut out = vec![[0.0; 3]; rec.topology().n_vertices];
     rec.reconstruct(ws, l, a, gauge, &mut out).unwrap();
     out

@@ -737,9 +737,10 @@ pub fn evaluate(
     progress(stage);
     let t = Instant::now();
     let gn = GnOptions::default();
-    let eval = evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind, &gn, &mut |d| {
-        progress(&format!("{stage} ({d})"))
-    })?;
+    let eval =
+        evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind, &gn, &mut |d| {
+            progress(&format!("{stage} ({d})"))
+        })?;
     let eval_s = t.elapsed().as_secs_f64();
     let stage = "component curves (Fig. 7)";
     progress(stage);
@@ -1029,11 +1030,13 @@ pub fn component_curves(
         let kmax = model.blocks[part]
             .n_components()
             .max(model.blocks[part + 3].n_components());
-        let mut ks: Vec<usize> = [1usize, 2, 5, 10, 25, 50, 100, 150, 200, 250, 300, 400, 500, 750, 1000]
-            .iter()
-            .copied()
-            .filter(|&k| k < kmax)
-            .collect();
+        let mut ks: Vec<usize> = [
+            1usize, 2, 5, 10, 25, 50, 100, 150, 200, 250, 300, 400, 500, 750, 1000,
+        ]
+        .iter()
+        .copied()
+        .filter(|&k| k < kmax)
+        .collect();
         ks.push(kmax);
         let data: Vec<(Vec<V3>, Vec<V3>)> = rows
             .iter()

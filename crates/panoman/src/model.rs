@@ -24,7 +24,7 @@ pub enum Encoder {
     /// best RL/RA, not the best mesh: RA errors integrate along the body's chains).
     LeastSquares,
     /// The least-squares β refined by Gauss–Newton on the vertex error through `g`
-    /// (docs/design/splocs-model.md §4.3): the model's closest mesh up to a rigid motion.
+    /// (docs/design/splocs-model.md §8): the model's closest mesh up to a rigid motion.
     /// Costs a few g solves and linearized solves (seconds on the full template).
     #[default]
     VertexError,

@@ -1,5 +1,5 @@
 //! The linearization of `g` at a solution: `δx = J_g (δℓ*, δφ*)` and its transpose
-//! (docs/design/rla-and-g.md §3.8).
+//! (docs/design/rla-and-g.md §3.7).
 //!
 //! With the frames `R_t` and local coordinates `q_t = (ℓ01, c, h)` of the last
 //! [`Reconstructor::reconstruct`] call (read from its [`GWorkspace`]):
@@ -90,11 +90,7 @@ fn third_corner_jac(l01: f64, l12: f64, l20: f64) -> [[f64; 3]; 3] {
     let h2 = l20 * l20 - c * c;
     let dh = if h2 > HEIGHT_EPS * l01 * l01 {
         let h = h2.sqrt();
-        [
-            -c * dc[0] / h,
-            -c * dc[1] / h,
-            (l20 - c * dc[2]) / h,
-        ]
+        [-c * dc[0] / h, -c * dc[1] / h, (l20 - c * dc[2]) / h]
     } else {
         [HEIGHT_EPS.sqrt(), 0.0, 0.0]
     };

@@ -1,5 +1,5 @@
 //! The vertex-error encoder: β by Gauss–Newton on the mesh error through `g`
-//! (docs/design/splocs-model.md §4.3).
+//! (docs/design/splocs-model.md §8).
 //!
 //! The least-squares encoder ([`Evaluator::encode`]) fits RL/RA; what is measured is the
 //! vertex error of `g(RL(β), RA(β), B_S(α))`, and small RA errors integrate along the body's
@@ -132,7 +132,13 @@ impl Evaluator {
             .lengths
             .iter()
             .zip(&rla.rl)
-            .map(|(&lr, &r)| if 1.0 + r >= MIN_RELATIVE_LENGTH { lr } else { 0.0 })
+            .map(|(&lr, &r)| {
+                if 1.0 + r >= MIN_RELATIVE_LENGTH {
+                    lr
+                } else {
+                    0.0
+                }
+            })
             .collect();
         Ok(Point {
             x,
@@ -214,7 +220,12 @@ impl Evaluator {
     fn gn_cgls(&self, pt: &Point, lay: &Layout, iters: usize) -> Result<Vec<f64>> {
         let mut lin = self.rec.linearize(&self.ws, &pt.lengths, &pt.angles)?;
         let nv = pt.x.len();
-        let mut res: Vec<V3> = pt.target.iter().zip(&pt.x).map(|(t, x)| sub(*t, *x)).collect();
+        let mut res: Vec<V3> = pt
+            .target
+            .iter()
+            .zip(&pt.x)
+            .map(|(t, x)| sub(*t, *x))
+            .collect();
         let mut delta = vec![0.0; lay.len()];
         let mut s = vec![0.0; lay.len()];
         self.gn_apply_t(&mut lin, lay, &pt.dl_drl, &res, &mut s)?;
