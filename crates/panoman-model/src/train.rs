@@ -74,6 +74,9 @@ pub struct TrainConfig {
     pub motion_epochs: usize,
     /// Held-out rows per kind used by the evaluation (0 = all).
     pub eval_rows_per_kind: usize,
+    /// Whether the evaluation also measures the Gauss–Newton encoder (the `*_gn` figures;
+    /// seconds per full-template row).
+    pub eval_gn: bool,
     /// Seed of every random choice.
     pub seed: u64,
 }
@@ -100,6 +103,7 @@ impl TrainConfig {
                 motion_hidden: vec![64, 64],
                 motion_epochs: 150,
                 eval_rows_per_kind: 0,
+                eval_gn: false,
                 seed: 0,
             }),
             "default" => Ok(TrainConfig {
@@ -119,6 +123,7 @@ impl TrainConfig {
                 motion_hidden: vec![400, 600],
                 motion_epochs: 300,
                 eval_rows_per_kind: 40,
+                eval_gn: true,
                 seed: 0,
             }),
             other => Err(ModelError::Invalid(format!(
@@ -737,10 +742,10 @@ pub fn evaluate(
     progress(stage);
     let t = Instant::now();
     let gn = GnOptions::default();
-    let eval =
-        evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind, &gn, &mut |d| {
-            progress(&format!("{stage} ({d})"))
-        })?;
+    let gn = cfg.eval_gn.then_some(&gn);
+    let eval = evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind, gn, &mut |d| {
+        progress(&format!("{stage} ({d})"))
+    })?;
     let eval_s = t.elapsed().as_secs_f64();
     let stage = "component curves (Fig. 7)";
     progress(stage);
@@ -928,7 +933,8 @@ fn region_errors(a: &[V3], b: &[V3], groups: &[Vec<u32>], whole: bool) -> (f64, 
 
 /// Representation error on held-out identities (see [`PartError`]): each held-out row is
 /// encoded (α from its identity's rest shape, β by least squares on its RL/RA, then also
-/// refined by Gauss–Newton on the vertex error with `gn`), rebuilt with g, rigidly aligned to
+/// refined by Gauss–Newton on the vertex error with `gn` when given; the `*_gn` figures stay 0
+/// otherwise), rebuilt with g, rigidly aligned to
 /// the row and compared on its region. `progress(detail)` hears each row as it starts
 /// (`"body row 3/40"`).
 pub fn evaluate_representation(
@@ -936,7 +942,7 @@ pub fn evaluate_representation(
     ds: &Dataset,
     regions: &Regions,
     rows_per_kind: usize,
-    gn: &GnOptions,
+    gn: Option<&GnOptions>,
     progress: &mut dyn FnMut(&str),
 ) -> Result<RepresentationError> {
     let mut ev = Evaluator::new(model.clone())?;
@@ -973,21 +979,25 @@ pub fn evaluate_representation(
             pe.mean_mm_exact_rest += m;
             pe.max_mm_exact_rest = pe.max_mm_exact_rest.max(x);
             // Gauss–Newton β from the least-squares start.
-            let mut pg = p.clone();
-            ev.refine_beta(&mesh, &mut pg, false, gn)?;
-            let (m, x) = region_errors(&ev.pose(&pg, false)?, &mesh, &region, false);
-            pe.mean_mm_gn += m;
-            pe.max_mm_gn = pe.max_mm_gn.max(x);
+            if let Some(gn) = gn {
+                let mut pg = p.clone();
+                ev.refine_beta(&mesh, &mut pg, false, gn)?;
+                let (m, x) = region_errors(&ev.pose(&pg, false)?, &mesh, &region, false);
+                pe.mean_mm_gn += m;
+                pe.max_mm_gn = pe.max_mm_gn.max(x);
+            }
             if model.correction.is_some() {
                 let mut pc = ev.encode(&mesh, Some(&rest), true)?;
                 let posed = ev.pose(&pc, true)?;
                 let (m, x) = region_errors(&posed, &mesh, &region, false);
                 pe.mean_mm_corrected += m;
                 pe.max_mm_corrected = pe.max_mm_corrected.max(x);
-                ev.refine_beta(&mesh, &mut pc, true, gn)?;
-                let (m, x) = region_errors(&ev.pose(&pc, true)?, &mesh, &region, false);
-                pe.mean_mm_gn_corrected += m;
-                pe.max_mm_gn_corrected = pe.max_mm_gn_corrected.max(x);
+                if let Some(gn) = gn {
+                    ev.refine_beta(&mesh, &mut pc, true, gn)?;
+                    let (m, x) = region_errors(&ev.pose(&pc, true)?, &mesh, &region, false);
+                    pe.mean_mm_gn_corrected += m;
+                    pe.max_mm_gn_corrected = pe.max_mm_gn_corrected.max(x);
+                }
             }
         }
         let n = rows.len().max(1) as f64;

@@ -129,7 +129,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
             &ds,
             &regions,
             cfg.eval_rows_per_kind,
-            &gn,
+            Some(&gn),
             &mut stage,
         )?;
         panoman_model::train::Evaluation {

@@ -54,6 +54,8 @@ pub struct EvalPreset {
     pub twist_angles: Vec<f64>,
     /// Held-out rows per kind for the representation error.
     pub repr_rows: usize,
+    /// Whether the representation error also measures the Gauss–Newton encoder.
+    pub repr_gn: bool,
     /// Held-out rows per kind for the component curves.
     pub curve_rows: usize,
 }
@@ -68,6 +70,7 @@ impl EvalPreset {
             clip_keyframes: 5,
             twist_angles: vec![0.0, 30.0, 60.0, 90.0, 120.0, 150.0, 170.0, 180.0],
             repr_rows: 20,
+            repr_gn: true,
             curve_rows: 8,
         }
     }
@@ -81,6 +84,7 @@ impl EvalPreset {
             clip_keyframes: 2,
             twist_angles: vec![0.0, 90.0, 150.0, 170.0, 180.0],
             repr_rows: 4,
+            repr_gn: false,
             curve_rows: 2,
         }
     }

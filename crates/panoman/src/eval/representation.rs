@@ -14,7 +14,8 @@ pub(crate) fn run(
 ) -> Result<(RepresentationError, Vec<CurvePoint>)> {
     let pm = b.model.inner();
     let gn = panoman_model::model::GnOptions::default();
-    let repr = evaluate_representation(pm, &b.ds, &b.regions, preset.repr_rows, &gn, &mut |d| {
+    let gn = preset.repr_gn.then_some(&gn);
+    let repr = evaluate_representation(pm, &b.ds, &b.regions, preset.repr_rows, gn, &mut |d| {
         progress(EvalProgress::Detail(&format!("representation error: {d}")))
     })?;
     let curves = component_curves(pm, &b.ds, &b.regions, preset.curve_rows, &mut |d| {
