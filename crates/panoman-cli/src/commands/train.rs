@@ -182,15 +182,17 @@ pub fn run(a: TrainArgs) -> Result<()> {
             e.mean_mm_whole_alignment,
             e.rows
         );
-        println!(
-            "      Gauss–Newton β: mean {:.2} mm (max {:.1}) | with correction {:.2} mm (max {:.1}); worst least-squares row {} (vertex {})",
-            e.mean_mm_gn,
-            e.max_mm_gn,
-            e.mean_mm_gn_corrected,
-            e.max_mm_gn_corrected,
-            e.worst_row,
-            e.worst_vertex
-        );
+        if e.mean_mm_gn > 0.0 {
+            println!(
+                "      Gauss–Newton β: mean {:.2} mm (max {:.1}) | with correction {:.2} mm (max {:.1}); worst least-squares row {} (vertex {})",
+                e.mean_mm_gn,
+                e.max_mm_gn,
+                e.mean_mm_gn_corrected,
+                e.max_mm_gn_corrected,
+                e.worst_row,
+                e.worst_vertex
+            );
+        }
     }
     println!(
         "  report {}, curves {} / {}",
