@@ -144,6 +144,45 @@ fn small_model_trains_poses_and_encodes() {
 }
 
 #[test]
+fn gauss_newton_encoder_lowers_the_vertex_error_below_least_squares() {
+    let (data, model_path) = trained();
+    let model = std::sync::Arc::new(PanoManModel::load(model_path).unwrap());
+    let mut ev = Evaluator::new(model.clone()).unwrap();
+    let (mesh, rest, _) = held_out_row(data);
+    let opts = panoman_model::model::GnOptions::default();
+    for corr in [false, true] {
+        let ls = ev.encode(&mesh, Some(&rest), corr).unwrap();
+        let (_, e_ls) = panoman_mesh::align::aligned_error(&ev.pose(&ls, corr).unwrap(), &mesh);
+        let (gn, rep) = ev.encode_gn(&mesh, Some(&rest), corr, &opts).unwrap();
+        let (_, e_gn) = panoman_mesh::align::aligned_error(&ev.pose(&gn, corr).unwrap(), &mesh);
+        // α is the least-squares encoder's; only β moves, and the RMS never rises.
+        assert_eq!(gn.alpha, ls.alpha);
+        assert!(rep.rms <= rep.rms_start && rep.iterations >= 1, "{rep:?}");
+        assert!(
+            e_gn < 0.9 * e_ls,
+            "correction {corr}: Gauss–Newton mean error {e_gn} m is not below the \
+             least-squares {e_ls} m ({rep:?})"
+        );
+    }
+    // Through the library: the default encoder is the Gauss–Newton one and re-poses closer.
+    let lib = panoman::Model::load(model_path).unwrap();
+    let c = panoman::Correction::Skip;
+    let p_ls = lib
+        .encode_with(&mesh, Some(&rest), c, panoman::Encoder::LeastSquares)
+        .unwrap();
+    let p_gn = lib.encode(&mesh, Some(&rest), c).unwrap();
+    let err = |p: &Params| {
+        let x = lib.pose(p, c).unwrap();
+        x.iter()
+            .zip(&mesh)
+            .map(|(a, b)| panoman_mesh::geom::norm(panoman_mesh::geom::sub(*a, *b)))
+            .sum::<f64>()
+            / mesh.len() as f64
+    };
+    assert!(err(&p_gn) < err(&p_ls));
+}
+
+#[test]
 fn same_data_and_seed_give_a_byte_identical_model() {
     let (data, model_path) = trained();
     let again = model_path.with_file_name("M2.safetensors");

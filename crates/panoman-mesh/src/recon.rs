@@ -38,6 +38,9 @@ use faer::Mat;
 use faer::dyn_stack::MemBuffer;
 use rayon::prelude::*;
 
+mod linear;
+pub use linear::GLinearization;
+
 /// Clamp ε of the triangle height: `h ≥ sqrt(ε)·ℓ01` (handles blended lengths that violate the
 /// triangle inequality, docs/design/rla-and-g.md §3.6).
 const HEIGHT_EPS: f64 = 1e-12;
@@ -764,6 +767,14 @@ fn dual_bfs(topo: &Topology, start: u32) -> (u32, Vec<u32>) {
 /// `Q_e` of interior edge `e` from its five target lengths and its target angle φ*, by the
 /// canonical diamond embedding (see the module docs).
 pub fn connection_map(topo: &Topology, e: usize, lengths: &[f64], phi: f64) -> M3 {
+    let (sl, sr, ids) = diamond_edges(topo, e);
+    diamond_map(sl, sr, ids.map(|k| lengths[k as usize]), phi)
+}
+
+/// The diamond of interior edge `e = (i, j)`: the slot of `i` in fL, the slot of `j` in fR, and
+/// the edges whose lengths `Q_e` reads, in the order `[ij, jk, ik, il, jl]` (fL = (i, j, k),
+/// fR = (j, i, l)).
+pub(crate) fn diamond_edges(topo: &Topology, e: usize) -> (usize, usize, [u32; 5]) {
     let [i, j] = topo.edges[e];
     let [fl, fr] = topo.edge_faces[e];
     let tl = topo.faces[fl as usize];
@@ -772,13 +783,25 @@ pub fn connection_map(topo: &Topology, e: usize, lengths: &[f64], phi: f64) -> M
     let sr = tr.iter().position(|&v| v == j).unwrap_or(0);
     let fel = topo.face_edges[fl as usize];
     let fer = topo.face_edges[fr as usize];
-    let l = lengths[e];
     // fL = (i, j, k) from slot sl: slot sl+1 is j→k, slot sl+2 is k→i.
-    let l_jk = lengths[fel[(sl + 1) % 3] as usize];
-    let l_ik = lengths[fel[(sl + 2) % 3] as usize];
     // fR = (j, i, l) from slot sr: slot sr+1 is i→l, slot sr+2 is l→j.
-    let l_il = lengths[fer[(sr + 1) % 3] as usize];
-    let l_jl = lengths[fer[(sr + 2) % 3] as usize];
+    (
+        sl,
+        sr,
+        [
+            e as u32,
+            fel[(sl + 1) % 3],
+            fel[(sl + 2) % 3],
+            fer[(sr + 1) % 3],
+            fer[(sr + 2) % 3],
+        ],
+    )
+}
+
+/// `Q_e` from the diamond's slots (see [`diamond_edges`]), its lengths `[ℓ_ij, ℓ_jk, ℓ_ik,
+/// ℓ_il, ℓ_jl]` and the angle φ*.
+pub(crate) fn diamond_map(sl: usize, sr: usize, len: [f64; 5], phi: f64) -> M3 {
+    let [l, l_jk, l_ik, l_il, l_jl] = len;
     let (ck, hk) = third_corner(l, l_ik, l_jk);
     let (cl, hl) = third_corner(l, l_il, l_jl);
     let (s, c) = phi.sin_cos();

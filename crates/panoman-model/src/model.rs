@@ -38,6 +38,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Arc;
 
+mod gn;
+pub use gn::{GnOptions, GnReport};
+
 /// Names of the six β blocks, in β order.
 pub const BLOCK_NAMES: [&str; 6] = ["body_l", "face_l", "hands_l", "body_a", "face_a", "hands_a"];
 /// Format tag of model files.

@@ -19,7 +19,9 @@
 use crate::error::{ModelError, Result};
 use crate::geodesic::{EdgeGeodesics, PartGeodesics};
 use crate::mlp::{self, Loss, Mlp, OutputNorm, PcaHead, PcaHeadOptions};
-use crate::model::{BLOCK_NAMES, Block, Correction, Evaluator, KeypointRows, Motion, PanoManModel};
+use crate::model::{
+    BLOCK_NAMES, Block, Correction, Evaluator, GnOptions, KeypointRows, Motion, PanoManModel,
+};
 use crate::pca::ShapePca;
 use crate::splocs::{self, Decomposition, SparseRows, SplocsOptions};
 use faer::Mat;
@@ -61,12 +63,20 @@ pub struct TrainConfig {
     pub correction_rank: usize,
     /// Correction MLP epochs.
     pub correction_epochs: usize,
+    /// Decoupled (AdamW) weight decay of the correction MLP (the MLP memorizes its training
+    /// rows without it: docs/design/splocs-model.md §5.1).
+    pub correction_weight_decay: f64,
+    /// Early-stopping patience (epochs) of the correction MLP on the validation identities.
+    pub correction_patience: usize,
     /// Motion MLP hidden widths (empty = no motion MLP).
     pub motion_hidden: Vec<usize>,
     /// Motion MLP epochs.
     pub motion_epochs: usize,
     /// Held-out rows per kind used by the evaluation (0 = all).
     pub eval_rows_per_kind: usize,
+    /// Whether the evaluation also measures the Gauss–Newton encoder (the `*_gn` figures;
+    /// seconds per full-template row).
+    pub eval_gn: bool,
     /// Seed of every random choice.
     pub seed: u64,
 }
@@ -88,9 +98,12 @@ impl TrainConfig {
                 correction_hidden: 128,
                 correction_rank: 16,
                 correction_epochs: 150,
+                correction_weight_decay: 1e-5,
+                correction_patience: 30,
                 motion_hidden: vec![64, 64],
                 motion_epochs: 150,
                 eval_rows_per_kind: 0,
+                eval_gn: false,
                 seed: 0,
             }),
             "default" => Ok(TrainConfig {
@@ -105,9 +118,12 @@ impl TrainConfig {
                 correction_hidden: 1500,
                 correction_rank: 192,
                 correction_epochs: 200,
+                correction_weight_decay: 1e-5,
+                correction_patience: 30,
                 motion_hidden: vec![400, 600],
                 motion_epochs: 300,
                 eval_rows_per_kind: 40,
+                eval_gn: true,
                 seed: 0,
             }),
             other => Err(ModelError::Invalid(format!(
@@ -171,6 +187,25 @@ pub struct PartError {
     /// Mean (mm) when the whole mesh is aligned at once instead of each part on its own (for
     /// face and hands this adds the drift of the body chain to the part's error).
     pub mean_mm_whole_alignment: f64,
+    /// Mean (mm), β refined by Gauss–Newton on the vertex error ([`Evaluator::refine_beta`],
+    /// started from the least-squares β), no correction. 0 in reports written before it.
+    #[serde(default)]
+    pub mean_mm_gn: f64,
+    /// Max (mm), Gauss–Newton β, no correction.
+    #[serde(default)]
+    pub max_mm_gn: f64,
+    /// Mean (mm), Gauss–Newton β with the correction MLP.
+    #[serde(default)]
+    pub mean_mm_gn_corrected: f64,
+    /// Max (mm), Gauss–Newton β with the correction MLP.
+    #[serde(default)]
+    pub max_mm_gn_corrected: f64,
+    /// Index of the dataset row with the largest error (least-squares β, no correction).
+    #[serde(default)]
+    pub worst_row: usize,
+    /// The vertex of that maximum.
+    #[serde(default)]
+    pub worst_vertex: usize,
 }
 
 /// Held-out representation error per part ([`evaluate_representation`]); serializes as
@@ -542,6 +577,8 @@ pub fn train(
             epochs: cfg.correction_epochs,
             seed: cfg.seed ^ 0xC1,
             output_norm: OutputNorm::Global,
+            weight_decay: cfg.correction_weight_decay,
+            patience: Some(cfg.correction_patience),
             ..mlp::TrainConfig::default()
         };
         let train_set = mlp::Dataset::new(xtr.as_ref(), ytr.as_ref())?;
@@ -704,7 +741,9 @@ pub fn evaluate(
     let stage = "representation error (held-out identities)";
     progress(stage);
     let t = Instant::now();
-    let eval = evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind, &mut |d| {
+    let gn = GnOptions::default();
+    let gn = cfg.eval_gn.then_some(&gn);
+    let eval = evaluate_representation(model, ds, regions, cfg.eval_rows_per_kind, gn, &mut |d| {
         progress(&format!("{stage} ({d})"))
     })?;
     let eval_s = t.elapsed().as_secs_f64();
@@ -841,6 +880,28 @@ fn held_out_rows(ds: &Dataset, kind: u8, limit: usize) -> Vec<usize> {
     }
 }
 
+/// [`region_errors`] with per-group alignment, also returning the vertex of the maximum.
+fn region_errors_argmax(a: &[V3], b: &[V3], groups: &[Vec<u32>]) -> (f64, f64, usize) {
+    let (mut sum, mut cnt, mut max, mut arg) = (0.0, 0usize, 0.0f64, 0usize);
+    for g in groups {
+        let mut w = vec![0.0; a.len()];
+        for &v in g {
+            w[v as usize] = 1.0;
+        }
+        let m = rigid_align(a, b, Some(&w));
+        for &v in g {
+            let d = norm(sub(m.apply(a[v as usize]), b[v as usize]));
+            sum += d;
+            if d > max {
+                max = d;
+                arg = v as usize;
+            }
+        }
+        cnt += g.len();
+    }
+    (sum / cnt.max(1) as f64, max, arg)
+}
+
 /// Per-vertex errors (m) of `a` against `b` over `groups`: each group is rigidly aligned on its
 /// own vertices (Kabsch), or all groups by one alignment of the whole mesh when `whole`.
 /// Returns (mean over all group vertices, max).
@@ -871,14 +932,17 @@ fn region_errors(a: &[V3], b: &[V3], groups: &[Vec<u32>], whole: bool) -> (f64, 
 }
 
 /// Representation error on held-out identities (see [`PartError`]): each held-out row is
-/// encoded (α from its identity's rest shape, β by least squares on its RL/RA), rebuilt with g,
-/// rigidly aligned to the row and compared on its region. `progress(detail)` hears each row
-/// as it starts (`"body row 3/40"`).
+/// encoded (α from its identity's rest shape, β by least squares on its RL/RA, then also
+/// refined by Gauss–Newton on the vertex error with `gn` when given; the `*_gn` figures stay 0
+/// otherwise), rebuilt with g, rigidly aligned to
+/// the row and compared on its region. `progress(detail)` hears each row as it starts
+/// (`"body row 3/40"`).
 pub fn evaluate_representation(
     model: &Arc<PanoManModel>,
     ds: &Dataset,
     regions: &Regions,
     rows_per_kind: usize,
+    gn: Option<&GnOptions>,
     progress: &mut dyn FnMut(&str),
 ) -> Result<RepresentationError> {
     let mut ev = Evaluator::new(model.clone())?;
@@ -900,9 +964,13 @@ pub fn evaluate_representation(
             let rest = row_vertices(ds, ds.rest_of[r] as usize)?;
             let p = ev.encode(&mesh, Some(&rest), false)?;
             let posed = ev.pose(&p, false)?;
-            let (m, x) = region_errors(&posed, &mesh, &region, false);
+            let (m, x, v) = region_errors_argmax(&posed, &mesh, &region);
             pe.mean_mm += m;
-            pe.max_mm = pe.max_mm.max(x);
+            if x > pe.max_mm {
+                pe.max_mm = x;
+                pe.worst_row = r;
+                pe.worst_vertex = v;
+            }
             pe.mean_mm_whole_alignment += region_errors(&posed, &mesh, &region, true).0;
             // Exact rest: RLA of the model added to the identity's own rest shape.
             let rla = model.rla(&p, false);
@@ -910,12 +978,26 @@ pub fn evaluate_representation(
             let (m, x) = region_errors(&exact, &mesh, &region, false);
             pe.mean_mm_exact_rest += m;
             pe.max_mm_exact_rest = pe.max_mm_exact_rest.max(x);
+            // Gauss–Newton β from the least-squares start.
+            if let Some(gn) = gn {
+                let mut pg = p.clone();
+                ev.refine_beta(&mesh, &mut pg, false, gn)?;
+                let (m, x) = region_errors(&ev.pose(&pg, false)?, &mesh, &region, false);
+                pe.mean_mm_gn += m;
+                pe.max_mm_gn = pe.max_mm_gn.max(x);
+            }
             if model.correction.is_some() {
-                let pc = ev.encode(&mesh, Some(&rest), true)?;
+                let mut pc = ev.encode(&mesh, Some(&rest), true)?;
                 let posed = ev.pose(&pc, true)?;
                 let (m, x) = region_errors(&posed, &mesh, &region, false);
                 pe.mean_mm_corrected += m;
                 pe.max_mm_corrected = pe.max_mm_corrected.max(x);
+                if let Some(gn) = gn {
+                    ev.refine_beta(&mesh, &mut pc, true, gn)?;
+                    let (m, x) = region_errors(&ev.pose(&pc, true)?, &mesh, &region, false);
+                    pe.mean_mm_gn_corrected += m;
+                    pe.max_mm_gn_corrected = pe.max_mm_gn_corrected.max(x);
+                }
             }
         }
         let n = rows.len().max(1) as f64;
@@ -926,6 +1008,10 @@ pub fn evaluate_representation(
         pe.max_mm_corrected *= 1e3;
         pe.mean_mm_exact_rest *= 1e3 / n;
         pe.max_mm_exact_rest *= 1e3;
+        pe.mean_mm_gn *= 1e3 / n;
+        pe.max_mm_gn *= 1e3;
+        pe.mean_mm_gn_corrected *= 1e3 / n;
+        pe.max_mm_gn_corrected *= 1e3;
         *slot = pe;
     }
     Ok(out)
@@ -954,11 +1040,13 @@ pub fn component_curves(
         let kmax = model.blocks[part]
             .n_components()
             .max(model.blocks[part + 3].n_components());
-        let mut ks: Vec<usize> = [1usize, 2, 5, 10, 25, 50, 100, 150, 200, 250]
-            .iter()
-            .copied()
-            .filter(|&k| k < kmax)
-            .collect();
+        let mut ks: Vec<usize> = [
+            1usize, 2, 5, 10, 25, 50, 100, 150, 200, 250, 300, 400, 500, 750, 1000,
+        ]
+        .iter()
+        .copied()
+        .filter(|&k| k < kmax)
+        .collect();
         ks.push(kmax);
         let data: Vec<(Vec<V3>, Vec<V3>)> = rows
             .iter()

@@ -3,7 +3,7 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use panoman_mesh::geom::V3;
-use panoman_model::model::{BLOCK_NAMES, Evaluator, PanoManModel, Params};
+use panoman_model::model::{BLOCK_NAMES, Evaluator, GnOptions, PanoManModel, Params};
 
 use crate::error::{Error, Result};
 
@@ -15,6 +15,21 @@ pub enum Correction {
     Apply,
     /// The linear model `X̄ + Mβ` alone (ablation).
     Skip,
+}
+
+/// How [`Model::encode_with`] finds β.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum Encoder {
+    /// The least-squares fit of the mesh's RL/RA (one small dense solve per quantity; the
+    /// best RL/RA, not the best mesh: RA errors integrate along the body's chains).
+    LeastSquares,
+    /// The least-squares β refined by Gauss–Newton on the vertex error through `g`
+    /// (docs/design/splocs-model.md §8): the model's closest mesh up to a rigid motion.
+    /// Costs a few g solves and linearized solves (seconds on the full template).
+    #[default]
+    VertexError,
+    /// [`Encoder::VertexError`] with explicit iteration counts.
+    VertexErrorWith(GnOptions),
 }
 
 /// The six β blocks: {RL, RA} × {body, face, hands} (PanoMan §4). Component 0 of each
@@ -261,11 +276,8 @@ impl Model {
     }
 
     /// Encodes a registered mesh (the model's topology, metres) into parameters, the inverse of
-    /// [`Model::pose`]: α is the shape-PCA projection of `rest` when given (the person's rest
-    /// shape), else of the mesh itself; β is the least-squares fit of the mesh's RL/RA with the
-    /// correction applied (unless `correction` is [`Correction::Skip`]). The rigid placement is kept: `pose(encode(x))` lands where `x` is
-    /// (`rotation`/`translation` are the least-squares rigid motion from `B_P(α, β)` built in
-    /// the rest shape's gauge onto `x`).
+    /// [`Model::pose`], with the default encoder ([`Encoder::VertexError`]): see
+    /// [`Model::encode_with`].
     ///
     /// # Errors
     /// [`Error::Invalid`] for wrong vertex counts or non-finite values; numerical failures.
@@ -275,6 +287,26 @@ impl Model {
         rest: Option<&[V3]>,
         correction: Correction,
     ) -> Result<Params> {
+        self.encode_with(vertices, rest, correction, Encoder::default())
+    }
+
+    /// Encodes a registered mesh (the model's topology, metres) into parameters: α is the
+    /// shape-PCA projection of `rest` when given (the person's rest shape), else of the mesh
+    /// itself; β is the least-squares fit of the mesh's RL/RA with the correction applied
+    /// (unless `correction` is [`Correction::Skip`]), then, with [`Encoder::VertexError`],
+    /// refined to minimise `Σ_v |B_P(α, β)_v − T x_v|²` over β (T rigid). The rigid placement
+    /// is kept: `pose(encode(x))` lands where `x` is (`rotation`/`translation` are the
+    /// least-squares rigid motion from `B_P(α, β)` built in the rest shape's gauge onto `x`).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] for wrong vertex counts or non-finite values; numerical failures.
+    pub fn encode_with(
+        &self,
+        vertices: &[V3],
+        rest: Option<&[V3]>,
+        correction: Correction,
+        encoder: Encoder,
+    ) -> Result<Params> {
         self.check_vertices("mesh", vertices)?;
         if let Some(r) = rest {
             self.check_vertices("rest mesh", r)?;
@@ -282,6 +314,14 @@ impl Model {
         self.with_evaluator(|ev| -> Result<Params> {
             let corr = correction == Correction::Apply;
             let mut p = ev.encode(vertices, rest, corr)?;
+            let gn = match encoder {
+                Encoder::LeastSquares => None,
+                Encoder::VertexError => Some(GnOptions::default()),
+                Encoder::VertexErrorWith(o) => Some(o),
+            };
+            if let Some(o) = gn {
+                ev.refine_beta(vertices, &mut p, corr, &o)?;
+            }
             let built = ev.pose(&p, corr)?;
             let rigid = panoman_mesh::align::rigid_align(&built, vertices, None);
             p.rotation = panoman_fit::fit::rotation_vector(&rigid.r);

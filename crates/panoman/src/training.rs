@@ -113,6 +113,32 @@ pub fn train(
     })
 }
 
+/// The dataset in `data` and the template regions of its topology (for
+/// [`panoman_model::train::evaluate`] of an already trained model).
+///
+/// # Errors
+/// An unreadable dataset or an unknown topology in it; asset errors.
+pub fn dataset_and_regions(assets: &AssetDir, data: &Path) -> Result<(Dataset, Regions)> {
+    let ds = Dataset::open(data)?;
+    let full = full_template(assets)?;
+    let full_regions = Regions::full(assets, &full)?;
+    let regions = match ds.meta["topology"]["name"].as_str().unwrap_or("") {
+        "full" => full_regions,
+        "small" => {
+            let small = small_template(assets, &full)?;
+            Regions::small(&full_regions, &small)
+                .map_err(|e| Error::Invalid(format!("small regions: {e}")))?
+        }
+        other => {
+            return Err(Error::Format {
+                path: data.join("dataset.json"),
+                what: format!("unknown topology '{other}'"),
+            });
+        }
+    };
+    Ok((ds, regions))
+}
+
 /// Embeds the LBS rig into a model trained before rigs were embedded.
 ///
 /// # Errors

@@ -36,6 +36,17 @@ pub struct TrainArgs {
     /// Asset directory (default: $PANOMAN_ASSETS, else the user cache directory).
     #[arg(long)]
     pub assets: Option<PathBuf>,
+    /// Do not train: evaluate the existing model --out on --data (held-out representation
+    /// error with the least-squares and Gauss–Newton encoders, Fig. 7 curves) and update the
+    /// `representation_error` and evaluation timings of <out>.report.json (created if missing).
+    #[arg(long)]
+    pub evaluate_only: bool,
+    /// Override the preset's held-out rows per kind of the evaluation (0 = all).
+    #[arg(long)]
+    pub eval_rows: Option<usize>,
+    /// With --evaluate-only: skip the Fig. 7 curves (the representation error only).
+    #[arg(long, requires = "evaluate_only")]
+    pub skip_curves: bool,
 }
 
 /// Runs `panoman train`.
@@ -65,6 +76,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
         }
         cfg.n_shape = n;
     }
+    if let Some(n) = a.eval_rows {
+        cfg.eval_rows_per_kind = n;
+    }
     let assets = crate::util::open_assets(a.assets.as_deref())?;
     let pb = indicatif::ProgressBar::new_spinner();
     pb.enable_steady_tick(Duration::from_millis(150));
@@ -88,19 +102,51 @@ pub fn run(a: TrainArgs) -> Result<()> {
         stage_start = Instant::now();
         pb.set_message(name.to_string());
     };
-    let trained = panoman::training::train(&assets, &a.data, &cfg, &mut stage)?;
-    let (out, ds, regions) = (trained.output, trained.dataset, trained.regions);
-    let topo_name = out.model.topology_name.clone();
-    out.model.save(&a.out)?;
     let stem = a.out.with_extension("");
     let report_path = PathBuf::from(format!("{}.report.json", stem.display()));
-    write_atomic(&report_path, serde_json::to_string_pretty(&out.report)?)?;
-    let model = std::sync::Arc::new(out.model);
-    let eval = evaluate(&model, &ds, &regions, &cfg, &mut stage)
-        .with_context(|| a.data.display().to_string())?;
+    let (model, base_report, ds, regions) = if a.evaluate_only {
+        let model = panoman_model::model::PanoManModel::load(&a.out)?;
+        let (ds, regions) = panoman::training::dataset_and_regions(&assets, &a.data)?;
+        let report = std::fs::read_to_string(&report_path)
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .unwrap_or_else(|| serde_json::json!({"timings": {}}));
+        (model, report, ds, regions)
+    } else {
+        let trained = panoman::training::train(&assets, &a.data, &cfg, &mut stage)?;
+        let (out, ds, regions) = (trained.output, trained.dataset, trained.regions);
+        out.model.save(&a.out)?;
+        write_atomic(&report_path, serde_json::to_string_pretty(&out.report)?)?;
+        (out.model, out.report, ds, regions)
+    };
+    let topo_name = model.topology_name.clone();
+    let model = std::sync::Arc::new(model);
+    let eval = if a.skip_curves {
+        let t = Instant::now();
+        let gn = panoman_model::model::GnOptions::default();
+        let repr = panoman_model::train::evaluate_representation(
+            &model,
+            &ds,
+            &regions,
+            cfg.eval_rows_per_kind,
+            Some(&gn),
+            &mut stage,
+        )?;
+        panoman_model::train::Evaluation {
+            representation_error: repr,
+            timings: panoman_model::train::EvaluationTimings {
+                evaluation_s: t.elapsed().as_secs_f64(),
+                curves_s: 0.0,
+            },
+            curves: Vec::new(),
+        }
+    } else {
+        evaluate(&model, &ds, &regions, &cfg, &mut stage)
+            .with_context(|| a.data.display().to_string())?
+    };
     stage("");
     pb.finish_and_clear();
-    let mut report = out.report.clone();
+    let mut report = base_report;
     report["representation_error"] = serde_json::to_value(&eval.representation_error)?;
     report["timings"]["evaluation_s"] = eval.timings.evaluation_s.into();
     report["timings"]["curves_s"] = eval.timings.curves_s.into();
@@ -108,7 +154,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
     // Fig. 7: CSV + PNG.
     let csv_path = PathBuf::from(format!("{}.fig7.csv", stem.display()));
     let png_path = PathBuf::from(format!("{}.fig7.png", stem.display()));
-    component_curves_files(&csv_path, &png_path, &eval.curves)?;
+    if !a.skip_curves {
+        component_curves_files(&csv_path, &png_path, &eval.curves)?;
+    }
     let ev = &eval.representation_error;
     println!(
         "{}: {} model ({} shape, β {}), trained in {:.1} s",
@@ -125,14 +173,26 @@ pub fn run(a: TrainArgs) -> Result<()> {
     );
     for (part, e) in [("body", &ev.body), ("face", &ev.face), ("hands", &ev.hands)] {
         println!(
-            "  held-out {part:<5}: mean {:.2} mm (max {:.1}) | with correction {:.2} mm | exact rest shape {:.2} mm | whole-mesh alignment {:.2} mm  [{} rows]",
+            "  held-out {part:<5}: mean {:.2} mm (max {:.1}) | with correction {:.2} mm (max {:.1}) | exact rest shape {:.2} mm | whole-mesh alignment {:.2} mm  [{} rows]",
             e.mean_mm,
             e.max_mm,
             e.mean_mm_corrected,
+            e.max_mm_corrected,
             e.mean_mm_exact_rest,
             e.mean_mm_whole_alignment,
             e.rows
         );
+        if e.mean_mm_gn > 0.0 {
+            println!(
+                "      Gauss–Newton β: mean {:.2} mm (max {:.1}) | with correction {:.2} mm (max {:.1}); worst least-squares row {} (vertex {})",
+                e.mean_mm_gn,
+                e.max_mm_gn,
+                e.mean_mm_gn_corrected,
+                e.max_mm_gn_corrected,
+                e.worst_row,
+                e.worst_vertex
+            );
+        }
     }
     println!(
         "  report {}, curves {} / {}",

@@ -56,6 +56,8 @@ pub struct EvalPreset {
     pub twist_angles: Vec<f64>,
     /// Held-out rows per kind for the representation error.
     pub repr_rows: usize,
+    /// Whether the representation error also measures the Gauss–Newton encoder.
+    pub repr_gn: bool,
     /// Held-out rows per kind for the component curves.
     pub curve_rows: usize,
     /// Stress set: whole-body composites (body pose + gestures + expression).
@@ -80,6 +82,7 @@ impl EvalPreset {
             clip_keyframes: 5,
             twist_angles: vec![0.0, 30.0, 60.0, 90.0, 120.0, 150.0, 170.0, 180.0],
             repr_rows: 20,
+            repr_gn: true,
             curve_rows: 8,
             stress_composites: 6,
             stress_extremes: 5,
@@ -98,6 +101,7 @@ impl EvalPreset {
             clip_keyframes: 2,
             twist_angles: vec![0.0, 90.0, 150.0, 170.0, 180.0],
             repr_rows: 4,
+            repr_gn: false,
             curve_rows: 2,
             stress_composites: 1,
             stress_extremes: 1,

@@ -13,7 +13,9 @@ pub(crate) fn run(
     progress: &mut dyn FnMut(EvalProgress),
 ) -> Result<(RepresentationError, Vec<CurvePoint>)> {
     let pm = b.model.inner();
-    let repr = evaluate_representation(pm, &b.ds, &b.regions, preset.repr_rows, &mut |d| {
+    let gn = panoman_model::model::GnOptions::default();
+    let gn = preset.repr_gn.then_some(&gn);
+    let repr = evaluate_representation(pm, &b.ds, &b.regions, preset.repr_rows, gn, &mut |d| {
         progress(EvalProgress::Detail(&format!("representation error: {d}")))
     })?;
     let curves = component_curves(pm, &b.ds, &b.regions, preset.curve_rows, &mut |d| {
