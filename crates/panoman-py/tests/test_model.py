@@ -56,8 +56,13 @@ def test_pose_inputs_any_array_like(model):
             return self.a if dtype is None else self.a.astype(dtype)
 
     assert np.allclose(model.pose(Tensor(alpha), {"body_a": Tensor(beta)}), ref, atol=1e-5)
+
+
+def test_pose_torch(model):
     torch = pytest.importorskip("torch")
-    assert np.allclose(model.pose(torch.tensor(alpha), {"body_a": torch.tensor(beta)}), ref)
+    alpha = np.linspace(-1, 1, model.n_shape)
+    ref = model.pose(alpha)
+    assert np.allclose(model.pose(torch.tensor(alpha, dtype=torch.float32)), ref, atol=1e-5)
 
 
 def test_pose_params_and_rigid(model):
@@ -165,3 +170,12 @@ def test_assets_dir():
 
 def test_version():
     assert panoman.__version__.count(".") == 2
+
+
+def test_generate_from_assets(model):
+    """panoman.generate without a model loads the generator from the asset tree; it is the
+    generator the model file embeds."""
+    mesh = panoman.generate({"phenotype": {"age": 0.3}}, "small")
+    embedded = panoman.Generator.from_model(model).generate({"phenotype": {"age": 0.3}}, "small")
+    assert np.allclose(mesh, embedded, atol=1e-9)
+    assert panoman.Generator.load().generate({}, "anny").shape == (13718, 3)
