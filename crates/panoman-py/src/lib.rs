@@ -406,7 +406,7 @@ impl PyParams {
         let path = path_of(path)?;
         let m = model.inner.clone();
         run(py, move || {
-            Ok(panoman::Params::read(&path, m.inner()).map_err(panoman::Error::from)?)
+            panoman::Params::read(&path, m.inner()).map_err(panoman::Error::from)
         })
         .map(|inner| PyParams { inner })
     }
@@ -415,9 +415,7 @@ impl PyParams {
     fn write(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
         let path = path_of(path)?;
         let p = self.inner.clone();
-        run(py, move || {
-            Ok(p.write(&path).map_err(panoman::Error::from)?)
-        })
+        run(py, move || p.write(&path).map_err(panoman::Error::from))
     }
 
     fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<(Bound<'py, PyAny>, (String,))> {
@@ -1204,12 +1202,12 @@ fn assets_dir() -> String {
     panoman_human::assets::default_dir().display().to_string()
 }
 
+/// Vertices `(V, 3)` float64 and faces `(F, 3)` int64 of a mesh.
+type MeshArrays<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<i64>>);
+
 /// Reads a mesh (OBJ or PLY): `(vertices (V, 3) float64 metres, faces (F, 3) int64)`.
 #[pyfunction]
-fn read_mesh<'py>(
-    py: Python<'py>,
-    path: &Bound<'py, PyAny>,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<i64>>)> {
+fn read_mesh<'py>(py: Python<'py>, path: &Bound<'py, PyAny>) -> PyResult<MeshArrays<'py>> {
     let path = path_of(path)?;
     let m = run(py, || Ok(panoman_mesh::io::read_mesh(&path)?))?;
     Ok((out_points(py, &m.positions), out_faces(py, &m.faces)))
