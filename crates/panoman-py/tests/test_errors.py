@@ -174,3 +174,13 @@ def test_messages_match_cli(tmp_path, model_path):
     with pytest.raises(panoman.FormatError) as e:
         panoman.Params.read(bad, panoman.Model.load(model_path))
     assert run.stderr.strip().splitlines()[-1] == f"error: {e.value}"
+
+
+def test_bad_handles(fitter, target):
+    _, kp = target
+    with pytest.raises(panoman.InvalidError, match="99999"):
+        fitter.fit(keypoints=kp, handles={99999: (0.0, 0.0, 1.0)})
+    with pytest.raises(panoman.InvalidError, match="index ≥ 0"):
+        fitter.fit(keypoints=kp, handles=[(-1, (0.0, 0.0, 1.0))])
+    with pytest.raises(panoman.InvalidError, match="handle 0"):
+        fitter.fit(keypoints=kp, handles=[(3, (0.0, np.inf, 1.0))])

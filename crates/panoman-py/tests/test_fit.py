@@ -86,3 +86,19 @@ def test_tracker(model, target):
     assert tracker.frames == 3
     lbs = panoman.Tracker(model, "lbs", cold=True)
     assert lbs.track(kp).params is None and lbs.frames == 1
+
+
+def test_motion_data(tmp_path, fitter, target):
+    _, kp = target
+    lbs = fitter.fit(keypoints=kp, method="lbs")
+    path = tmp_path / "lbs.params.json"
+    import json
+
+    path.write_text(json.dumps(lbs.rig_params))
+    motion = fitter.read_motion(path)
+    assert motion and set(motion) <= set(fitter.bone_names)
+    assert all(v.shape == (3,) for v in motion.values())
+    fit = fitter.fit(keypoints=kp, motion=motion, motion_weight=0.5)
+    assert body_mm(fit) < 10.0
+    with pytest.raises(panoman.InvalidError, match="LBS"):
+        fitter.fit(keypoints=kp, motion=motion, method="lbs")
