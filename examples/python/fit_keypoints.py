@@ -6,7 +6,9 @@ Without a model it builds the small example model (~8 s on first use). The keypo
 a posed mesh of the model itself, so the residuals show how well the fit recovers them.
 """
 
+import os
 import sys
+import tempfile
 
 import numpy as np
 
@@ -36,8 +38,9 @@ def main():
         print(f"{name}: {r.report['total_seconds']:.2f} s; keypoint residual (mm): {groups}; "
               f"mean vertex error {err:.1f} mm")
     print(f"alpha: {np.round(fit.params.alpha[:4], 3)} ...")
-    panoman.io.write_mesh("fit.obj", fit.vertices, model.faces)
-    print("wrote fit.obj")
+    out = os.path.join(tempfile.gettempdir(), "panoman-fit.obj")
+    panoman.io.write_mesh(out, fit.vertices, model.faces)
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":
