@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The test suite (what CI runs, via .ci/run): formatting, every crate's tests and doc tests,
-# then the numbered library examples on the small example model.
+# then the numbered library examples on the small example model, then the Python tests
+# (scripts/python-test.sh, which sets up its venv in target/python on first use).
 # The interchange tests use node + npm (pinned tools in tools/node) and Debian's chromium; they
 # are skipped with a note unless PANOMAN_NODE_TESTS=1 (which .ci/run sets).
 set -euo pipefail
@@ -22,3 +23,5 @@ for example in 01_pose 02_fit_keypoints 03_track 04_fit_scan; do
     echo "example $example:"
     cargo run --release --quiet -p panoman --example "$example"
 done
+# Python bindings (crates/panoman-py): venv + wheel (idempotent), then pytest.
+bash scripts/python-test.sh

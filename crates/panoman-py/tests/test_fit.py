@@ -1,0 +1,104 @@
+"""Fitter, FitResult, Tracker."""
+
+import pickle
+
+import numpy as np
+import pytest
+
+import panoman
+
+BODY = 15
+
+
+def body_mm(result):
+    return result.report["keypoint_residuals"]["body"]["mean_mm"]
+
+
+def test_fit_keypoints(model, fitter, target):
+    mesh, kp = target
+    fit = fitter.fit(keypoints=kp)
+    assert fit.vertices.shape == (model.n_vertices, 3) and fit.vertices.dtype == np.float64
+    assert isinstance(fit.params, panoman.Params)
+    assert fit.report["method"] == "panoman"
+    assert set(fit.report["keypoint_residuals"]) >= {"body", "face", "left_hand", "right_hand"}
+    assert body_mm(fit) < 5.0
+    assert np.abs(model.keypoints(fit.vertices) - kp).mean() < 0.01
+    assert "bones" in str(fit.rig_params) or len(fit.rig_params) > 0
+    assert fitter.setup_seconds > 0 and len(fitter.bone_names) > 100
+    assert "panoman" in repr(fit)
+
+
+def test_fit_named_keypoints_and_weights(model, fitter, target):
+    _, kp = target
+    names = model.keypoint_names
+    named = {n: tuple(kp[i]) for i, n in enumerate(names) if i < BODY or i >= 85}
+    fit = fitter.fit(keypoints=named, weights={names[0]: 0.5})
+    assert set(fit.report["keypoint_residuals"]) >= {"body"}
+    assert body_mm(fit) < 10.0
+    w = np.ones(127, dtype=np.float32)
+    w[BODY:85] = 0.0
+    fit_w = fitter.fit(keypoints=kp, weights=w)
+    assert body_mm(fit_w) < 10.0
+
+
+def test_fit_lbs(model, fitter, target):
+    _, kp = target
+    lbs = fitter.fit(keypoints=kp, method="lbs")
+    assert lbs.params is None
+    assert lbs.report["method"] == "lbs" and lbs.vertices.shape == (model.n_vertices, 3)
+    assert lbs.report["stages"] == []
+
+
+def test_fit_handles_and_points(model, fitter, target):
+    mesh, kp = target
+    handles = {0: mesh[0] + [0.0, 0.0, 0.01], 100: mesh[100]}
+    fit = fitter.fit(keypoints=kp, handles=handles)
+    assert np.linalg.norm(fit.vertices[100] - mesh[100]) < 0.02
+    fit2 = fitter.fit(keypoints=kp, handles=[(0, mesh[0], 2.0), (100, mesh[100])])
+    assert fit2.vertices.shape == mesh.shape
+    scan = fitter.fit(keypoints=kp, points=mesh[::3])
+    assert np.abs(scan.vertices - mesh).mean() < 0.02
+
+
+def test_fit_result_pickles(fitter, target):
+    _, kp = target
+    fit = fitter.fit(keypoints=kp, method="lbs")
+    back = pickle.loads(pickle.dumps(fit))
+    assert np.array_equal(back.vertices, fit.vertices) and back.report == fit.report
+
+
+def test_fit_fixed_params(model, fitter, target):
+    _, kp = target
+    fixed = panoman.Params(alpha=np.zeros(model.n_shape))
+    fit = fitter.fit(keypoints=kp, fixed=fixed)
+    assert np.allclose(fit.params.alpha, 0.0)
+
+
+def test_tracker(model, target):
+    mesh, kp = target
+    tracker = panoman.Tracker(model)
+    for i in range(3):
+        frame = tracker.track(keypoints=kp + [0.0, 0.01 * i, 0.0])
+        assert body_mm(frame) < 5.0
+    assert tracker.frames == 3
+    with pytest.raises(panoman.InvalidError):
+        tracker.track(keypoints={"bogus": (0, 0, 0)})
+    assert tracker.frames == 3
+    lbs = panoman.Tracker(model, "lbs", cold=True)
+    assert lbs.track(kp).params is None and lbs.frames == 1
+
+
+def test_motion_data(tmp_path, fitter, target):
+    _, kp = target
+    lbs = fitter.fit(keypoints=kp, method="lbs")
+    path = tmp_path / "lbs.params.json"
+    import json
+
+    path.write_text(json.dumps(lbs.rig_params))
+    motion = fitter.read_motion(path)
+    assert motion and set(motion) <= set(fitter.bone_names)
+    assert all(v.shape == (3,) for v in motion.values())
+    fit = fitter.fit(keypoints=kp, motion=motion, motion_weight=0.5)
+    assert body_mm(fit) < 10.0
+    with pytest.raises(panoman.InvalidError, match="LBS"):
+        fitter.fit(keypoints=kp, motion=motion, method="lbs")
