@@ -10,18 +10,14 @@ cargo fmt --all --check
 if command -v npm >/dev/null 2>&1; then
     npm ci --prefix tools/node --no-audit --no-fund --silent
 fi
-# The second BVH reader of the `mocap export` test: the PyPI `bvh` package in a venv under
-# target/ (PANOMAN_PY_TESTS=1, set by .ci/run, makes its absence an error).
-if command -v python3 >/dev/null 2>&1; then
-    if ! target/pyvenv/bin/python -c "import bvh" >/dev/null 2>&1; then
-        python3 -m venv target/pyvenv
-        target/pyvenv/bin/pip install --quiet --disable-pip-version-check bvh==0.3
-    fi
-fi
+# One Python venv (target/python, scripts/python-setup.sh): the `panoman` wheel and its test
+# tools, and the PyPI `bvh` package, the second BVH reader of the `mocap export` test
+# (PANOMAN_PY_TESTS=1, set by .ci/run, makes its absence an error there).
+bash scripts/python-setup.sh
 cargo test --release --workspace
 for example in 01_pose 02_fit_keypoints 03_track 04_fit_scan; do
     echo "example $example:"
     cargo run --release --quiet -p panoman --example "$example"
 done
-# Python bindings (crates/panoman-py): venv + wheel (idempotent), then pytest.
+# Python bindings (crates/panoman-py): the venv and wheel are up to date; pytest.
 bash scripts/python-test.sh

@@ -86,7 +86,7 @@ fn solve_then_export_as_bvh() {
             );
         }
         None => eprintln!(
-            "\n*** SKIPPED the second BVH reader: no Python with the PyPI `bvh` package (scripts/test.sh installs it into target/pyvenv; PANOMAN_PY_TESTS=1 makes this an error) ***\n"
+            "\n*** SKIPPED the second BVH reader: no Python with the PyPI `bvh` package (scripts/python-setup.sh installs it into target/python; PANOMAN_PY_TESTS=1 makes this an error) ***\n"
         ),
     }
     let _ = std::fs::remove_dir_all(&d);
@@ -136,13 +136,13 @@ fn max_joint_difference(a: &[Vec<[f64; 3]>], b: &[Vec<[f64; 3]>]) -> f64 {
 
 /// Joint positions of `bvh` by `tools/python/bvh_fk.py` (the PyPI `bvh` package as reader),
 /// per frame in the joint order of `b`; `None` when no Python with that package is found
-/// (`$PANOMAN_PYTHON`, else `target/pyvenv/bin/python`), which `PANOMAN_PY_TESTS=1` turns
+/// (`$PANOMAN_PYTHON`, else `target/python/bin/python`, the venv of scripts/python-setup.sh), which `PANOMAN_PY_TESTS=1` turns
 /// into a failure.
 fn python_bvh_joints(bvh: &Path, b: &panoman_mocap::bvh::Bvh) -> Option<Vec<Vec<[f64; 3]>>> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let python = std::env::var_os("PANOMAN_PYTHON")
         .map(PathBuf::from)
-        .unwrap_or_else(|| root.join("target/pyvenv/bin/python"));
+        .unwrap_or_else(|| root.join("target/python/bin/python"));
     let required = std::env::var("PANOMAN_PY_TESTS").is_ok_and(|v| v == "1");
     let has_bvh = std::process::Command::new(&python)
         .args(["-c", "import bvh"])
