@@ -156,6 +156,10 @@ if os.path.exists(model):
         hdr["motion_bones"] = None
         meta["panoman.model"] = json.dumps(hdr)
         put("model", "small_no_rig.safetensors", safetensors(keep, meta))
+        # rig.postcard: the first 4 KiB (the magic, then the start of the postcard body).
+        info = h["rig.postcard"]
+        f.seek(base + info["data_offsets"][0])
+        put("rigfile", "rig_head_4k.bin", b"\0" + f.read(4096))
         # The correction MLP alone (config in the metadata) for the store target.
         mlp_t = []
         for name, info in sorted(h.items(), key=lambda kv: kv[1].get("data_offsets", [0])[0] if kv[0] != "__metadata__" else -1):
@@ -167,6 +171,10 @@ if os.path.exists(model):
 else:
     print("no model file at %s: the model corpus has only the store seeds" % model)
 put("model", "store_small.safetensors", store)
+# rigfile: first byte ≢ 0 (mod 8) → the target prepends the magic (see fuzz_targets/rigfile.rs).
+put("rigfile", "empty_body.bin", b"\x01")
+put("rigfile", "short_body.bin", b"\x01" + bytes([3, 0, 1, 2, 255, 255, 255, 255, 15]))
+put("rigfile", "wrong_magic.bin", b"\x00panoman-rig-v999" + bytes(8))
 
 # Dataset: input = dataset.json, the separator, dataset.safetensors (see fuzz_targets/dataset.rs).
 SEP = b"\n#SAFETENSORS#\n"

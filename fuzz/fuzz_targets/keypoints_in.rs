@@ -7,8 +7,12 @@ use panoman_interchange::keypoints_in::{ImportOptions, Unit, parse_keypoints};
 use std::path::Path;
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&pick, body)) = data.split_first() else { return };
-    let Ok(text) = std::str::from_utf8(body) else { return };
+    let Some((&pick, body)) = data.split_first() else {
+        return;
+    };
+    let Ok(text) = std::str::from_utf8(body) else {
+        return;
+    };
     let options = ImportOptions {
         unit: [Unit::Centimetre, Unit::Metre, Unit::Millimetre][(pick % 3) as usize],
         person: ((pick >> 2) % 3) as usize,

@@ -7,6 +7,8 @@ use panoman_model::mlp::TensorStore;
 use panoman_model::model::PanoManModel;
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(store) = TensorStore::from_bytes(data, "fuzz-model.safetensors") else { return };
+    let Ok(store) = TensorStore::from_bytes(data, "fuzz-model.safetensors") else {
+        return;
+    };
     let _ = PanoManModel::from_store(&store);
 });

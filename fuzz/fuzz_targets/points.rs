@@ -4,8 +4,14 @@
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&pick, body)) = data.split_first() else { return };
-    let name = if pick % 2 == 0 { "points.ply" } else { "points.obj" };
+    let Some((&pick, body)) = data.split_first() else {
+        return;
+    };
+    let name = if pick % 2 == 0 {
+        "points.ply"
+    } else {
+        "points.obj"
+    };
     let path = panoman_fuzz::scratch_file(name, body);
     if let Err(e) = panoman::read_points(&path) {
         panoman_fuzz::assert_names(&e, &path);

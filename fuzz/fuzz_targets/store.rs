@@ -5,7 +5,9 @@ use libfuzzer_sys::fuzz_target;
 use panoman_model::mlp::{Mlp, PcaHead, TensorStore};
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(store) = TensorStore::from_bytes(data, "fuzz.safetensors") else { return };
+    let Ok(store) = TensorStore::from_bytes(data, "fuzz.safetensors") else {
+        return;
+    };
     let names: Vec<String> = store.names().map(str::to_string).collect();
     for name in &names {
         let shape = store.get(name).map(|t| t.shape.clone()).unwrap_or_default();

@@ -25,7 +25,10 @@ fn abort_over_cap(size: usize) -> ! {
     // No allocation here: a fixed buffer and a raw write.
     let mut buf = [0u8; 96];
     let mut w = &mut buf[..];
-    let _ = write!(w, "panoman-fuzz: allocation of {size} bytes exceeds the 64 MiB cap\n");
+    let _ = write!(
+        w,
+        "panoman-fuzz: allocation of {size} bytes exceeds the 64 MiB cap\n"
+    );
     let n = 96 - w.len();
     let _ = std::io::stderr().write_all(&buf[..n]);
     std::process::abort();
@@ -84,6 +87,12 @@ pub fn scratch_file(name: &str, bytes: &[u8]) -> PathBuf {
 /// Asserts that an error message names `path` (every reader's errors must say which file).
 pub fn assert_names(err: &dyn std::fmt::Display, path: &std::path::Path) {
     let msg = err.to_string();
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    assert!(msg.contains(&name), "error does not name the file {path:?}: {msg}");
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    assert!(
+        msg.contains(&name),
+        "error does not name the file {path:?}: {msg}"
+    );
 }

@@ -74,7 +74,11 @@ fn meta(n_rows: u64, n_id: u64, n_v: u64, train: &[u32]) -> serde_json::Value {
 fn dataset_lying_identity_count_is_an_error() {
     let dir = scratch("ds-ids");
     write_json(&dir, meta(1, 1_000_000_000_000_000, 3, &[0]));
-    assert_format_error(Dataset::open(&dir), "dataset.json", "split lists 1 identities");
+    assert_format_error(
+        Dataset::open(&dir),
+        "dataset.json",
+        "split lists 1 identities",
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
