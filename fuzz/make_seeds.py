@@ -198,6 +198,9 @@ def dataset(n_v, bones, rows, n_id, train, held):
 put("dataset", "one_row.bin", dataset(3, ["spine05"], [(0, 0, 0)], 1, [0], []))
 put("dataset", "two_ids.bin", dataset(2, ["spine05", "head"], [(0, 0, 0), (1, 0, 0), (0, 1, 2), (3, 1, 2)], 2, [0], [1]))
 put("dataset", "lying_ids.bin", dataset(1, [], [(0, 0, 0)], 10**15, [0], []))
+put("dataset", "repeated_id.bin", dataset(1, ["head"], [(0, 0, 0)], 257, [0] * 257, []))
+no_rows = dataset(1, ["head"], [(0, 0, 0)], 1, [0], []).replace(b'"n_rows": 1', b'"n_rows": 0').replace(b'"n_vertices": 1', b'"n_vertices": 1099511627776')
+put("dataset", "no_rows_huge_vertices.bin", no_rows)
 
 # Point clouds (read_points): first byte picks the extension (even: .ply, odd: .obj).
 put("points", "ply.bin", b"\x00" + (ply_hdr.format(fmt="ascii", nv=4, nf=0) + "0 0 0\n0.5 0 0\n0 0.5 0\n0 0 0.5\n").encode())
