@@ -667,6 +667,11 @@ impl Dataset {
                 .ok_or_else(|| jerr(format!("missing or invalid `{what}`")))
         };
         let n = get_usize(&meta["n_rows"], "n_rows")?;
+        if n == 0 {
+            // Also keeps `n_vertices` honest: with rows, the vertex tensor's size (checked
+            // against the file length below) bounds it.
+            return Err(jerr("`n_rows` is 0 (an empty dataset)".into()));
+        }
         let n_id = get_usize(&meta["n_identities"], "n_identities")?;
         let n_v = get_usize(&meta["topology"]["n_vertices"], "topology.n_vertices")?;
         let hash = meta["topology"]["hash"]
@@ -702,10 +707,11 @@ impl Dataset {
         let htext = std::str::from_utf8(&hbytes).map_err(|_| terr("header is not UTF-8".into()))?;
         let md: safetensors::tensor::Metadata = serde_json::from_str(htext)
             .map_err(|e| terr(format!("invalid safetensors header: {e}")))?;
-        if 8 + hlen + md.data_len() as u64 != file_len {
+        // Saturating: the header's offsets may sum to more than a u64 holds.
+        let claimed = (8 + hlen).saturating_add(md.data_len() as u64);
+        if claimed != file_len {
             return Err(terr(format!(
-                "file is {file_len} bytes, header says {}",
-                8 + hlen + md.data_len() as u64
+                "file is {file_len} bytes, header says {claimed}"
             )));
         }
         let st_hash = md
@@ -919,12 +925,20 @@ fn tensor_offsets(
 
 /// Checks that the train and held-out identities partition `0..n_id`.
 fn check_split(train: &[u32], held_out: &[u32], n_id: usize) -> std::result::Result<(), String> {
+    // A partition lists every identity once, so the lists bound `n_id` (checked before
+    // allocating by it: the count comes from the file).
+    if n_id != train.len() + held_out.len() {
+        return Err(format!(
+            "the split lists {} identities, the dataset has {n_id}",
+            train.len() + held_out.len()
+        ));
+    }
     let mut seen = vec![0u8; n_id];
     for &i in train.iter().chain(held_out) {
         let s = seen
             .get_mut(i as usize)
             .ok_or_else(|| format!("split names identity {i} of {n_id}"))?;
-        *s += 1;
+        *s = s.saturating_add(1);
     }
     if seen.iter().any(|&s| s != 1) {
         return Err("train and held-out identities must partition the identities".into());

@@ -96,15 +96,18 @@ fn parse_raw(bytes: Vec<u8>) -> std::result::Result<Raw, String> {
                 .map_err(|_| format!("bad shape `{shape_s}`"))
         })
         .collect::<std::result::Result<Vec<_>, _>>()?;
-    let count: usize = shape.iter().product();
-    let data = bytes[end..].to_vec();
-    if data.len() != count * dtype.size() {
+    // Checked: a header may claim a shape whose byte count overflows `usize`.
+    let needed = shape
+        .iter()
+        .try_fold(dtype.size(), |a, &d| a.checked_mul(d))
+        .ok_or_else(|| format!("shape {shape:?} of {descr} is too large"))?;
+    let data_len = bytes.len() - end;
+    if data_len != needed {
         return Err(format!(
-            "data has {} bytes, shape {shape:?} of {descr} needs {}",
-            data.len(),
-            count * dtype.size()
+            "data has {data_len} bytes, shape {shape:?} of {descr} needs {needed}"
         ));
     }
+    let data = bytes[end..].to_vec();
     Ok(Raw { dtype, shape, data })
 }
 

@@ -375,7 +375,13 @@ fn parse_parameters(r: &Bytes, start: usize, end: usize) -> Result<Vec<Parameter
         let off_pos = pos + 2 + len;
         let offset = r.u16(off_pos, "a parameter record")? as i16;
         if id < 0 {
-            groups.push((-id, name));
+            // Group ids are -1..=-127; -128 has no parameter counterpart (and no i8 negation).
+            let gid = id.checked_neg().ok_or_else(|| {
+                r.err(format!(
+                    "group record at byte {pos} has id {id} (groups are -1 to -127)"
+                ))
+            })?;
+            groups.push((gid, name));
         } else {
             let p = parse_param_body(r, off_pos + 2, name, pos)?;
             raw.push((id, p));
