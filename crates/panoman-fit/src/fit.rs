@@ -977,12 +977,18 @@ pub fn keypoint_residuals(
 ) -> std::collections::BTreeMap<String, GroupResidual> {
     let all = panoman_human::keypoints::keypoint_names();
     let values = model.keypoints.evaluate(x);
+    group_residuals(kp.points.iter().filter_map(|(&k, &p)| {
+        let r = model.keypoints.names.iter().position(|n| n == &all[k])?;
+        Some((k, 1e3 * norm(sub(values[r], p))))
+    }))
+}
+
+/// Mean and max per keypoint group of `(TC-127 index, distance in mm)` pairs.
+pub fn group_residuals(
+    distances: impl Iterator<Item = (usize, f64)>,
+) -> std::collections::BTreeMap<String, GroupResidual> {
     let mut out: std::collections::BTreeMap<String, GroupResidual> = Default::default();
-    for (&k, &p) in &kp.points {
-        let Some(r) = model.keypoints.names.iter().position(|n| n == &all[k]) else {
-            continue;
-        };
-        let d = 1e3 * norm(sub(values[r], p));
+    for (k, d) in distances {
         let g = out
             .entry(KeypointGroup::of(k).name().to_string())
             .or_default();

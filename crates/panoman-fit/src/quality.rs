@@ -27,7 +27,6 @@
 //! noted in the reason of a failed check (not a failure on its own: real people reach them).
 use crate::fit::GroupResidual;
 use crate::ik::{IK_PHENOTYPE, IkResult};
-use panoman_human::keypoints::KeypointGroup;
 use panoman_model::model::PanoManModel;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -172,20 +171,12 @@ pub fn alpha_leading_sigma(model: &PanoManModel, alpha: &[f64]) -> f64 {
 /// Keypoint residuals per group (mm) of an IK result, from its per-target residuals with
 /// weight > 0.
 pub fn ik_group_residuals(r: &IkResult) -> BTreeMap<String, GroupResidual> {
-    let mut out: BTreeMap<String, GroupResidual> = BTreeMap::new();
-    for e in r.residuals.iter().filter(|e| e.weight > 0.0) {
-        let d = 1e3 * e.distance;
-        let g = out
-            .entry(KeypointGroup::of(e.index).name().to_string())
-            .or_default();
-        g.n += 1;
-        g.mean_mm += d;
-        g.max_mm = g.max_mm.max(d);
-    }
-    for g in out.values_mut() {
-        g.mean_mm /= g.n.max(1) as f64;
-    }
-    out
+    crate::fit::group_residuals(
+        r.residuals
+            .iter()
+            .filter(|e| e.weight > 0.0)
+            .map(|e| (e.index, 1e3 * e.distance)),
+    )
 }
 
 /// The fitted phenotype values of `r` that sit on a bound (0 or 1), e.g. `muscle = 1`.
