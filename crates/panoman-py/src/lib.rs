@@ -670,6 +670,25 @@ impl PyModel {
         Array1::from_vec(self.inner.edge_parts().to_vec()).into_pyarray(py)
     }
 
+    /// Part of each vertex `(V,)` uint8 (0 body, 1 face, 2 left hand, 3 right hand): the
+    /// highest-priority part (hands, face, body) among the vertex's edges.
+    #[getter]
+    fn vertex_parts<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u8>> {
+        Array1::from_vec(self.inner.vertex_parts()).into_pyarray(py)
+    }
+
+    /// Vertex ids of each region `{name: (n,) int64}` for `body`, `face`, `left_hand`,
+    /// `right_hand` (ascending; a partition of the vertices, by `vertex_parts`).
+    #[getter]
+    fn regions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        for (name, ids) in self.inner.regions() {
+            let ids: Vec<i64> = ids.into_iter().map(i64::from).collect();
+            d.set_item(name, Array1::from_vec(ids).into_pyarray(py))?;
+        }
+        Ok(d)
+    }
+
     fn __repr__(&self) -> String {
         format!(
             "Model(topology={:?}, vertices={}, shape={}, rig={})",

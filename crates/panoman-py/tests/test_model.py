@@ -22,6 +22,15 @@ def test_load_and_properties(model, model_path):
     assert len(names) == 127 and names == panoman.keypoint_names()
     parts = model.edge_parts
     assert parts.dtype == np.uint8 and set(np.unique(parts)) <= {0, 1, 2, 3}
+    vparts = model.vertex_parts
+    assert vparts.dtype == np.uint8 and vparts.shape == (model.n_vertices,)
+    regions = model.regions
+    assert list(regions) == ["body", "face", "left_hand", "right_hand"]
+    ids = np.concatenate(list(regions.values()))
+    assert ids.dtype == np.int64 and np.array_equal(np.sort(ids), np.arange(model.n_vertices))
+    for code, name in enumerate(regions):
+        assert len(regions[name]) > 0 and (vparts[regions[name]] == code).all()
+    assert len(regions["body"]) > max(len(regions[n]) for n in ("face", "left_hand", "right_hand"))
     assert "small" in repr(model)
     assert panoman.Model.load(str(model_path)).n_vertices == model.n_vertices
 

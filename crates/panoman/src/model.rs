@@ -240,6 +240,41 @@ impl Model {
         &self.inner().edge_part
     }
 
+    /// Part of each vertex `(V,)` (0 body, 1 face, 2 left hand, 3 right hand): the
+    /// highest-priority part (left hand, right hand, face, body) among the vertex's edges, so a
+    /// region owns its boundary (the wrist seam belongs to the hand, the neck seam to the
+    /// face). On the full template this is the template's own vertex labelling (every face at
+    /// a vertex lends its part to two of the vertex's edges); a vertex on no edge is body.
+    pub fn vertex_parts(&self) -> Vec<u8> {
+        use panoman_human::regions::Part;
+        let edges = &self.shared.prototype.topology().edges;
+        let mut mask = vec![0u8; self.n_vertices()];
+        for (&[a, b], &p) in edges.iter().zip(self.edge_parts()) {
+            let bit = Part::ALL[usize::from(p.min(3))].bit();
+            mask[a as usize] |= bit;
+            mask[b as usize] |= bit;
+        }
+        mask.into_iter()
+            .map(|m| Part::highest_in(m) as u8)
+            .collect()
+    }
+
+    /// The vertex ids of each part, ascending, by [`Model::vertex_parts`]: `[(name, ids)]` for
+    /// `body`, `face`, `left_hand`, `right_hand`.
+    pub fn regions(&self) -> Vec<(&'static str, Vec<u32>)> {
+        use panoman_human::regions::Part;
+        let parts = self.vertex_parts();
+        Part::ALL
+            .into_iter()
+            .map(|part| {
+                let ids = (0..parts.len() as u32)
+                    .filter(|&v| parts[v as usize] == part as u8)
+                    .collect();
+                (part.name(), ids)
+            })
+            .collect()
+    }
+
     /// Whether the file carries the LBS rig (fits need no asset tree).
     pub fn has_rig(&self) -> bool {
         self.inner().rig.is_some()

@@ -116,6 +116,14 @@ class Model:
     @property
     def edge_parts(self) -> npt.NDArray[np.uint8]:
         """Part of each edge ``(E,)``: 0 body, 1 face, 2 left hand, 3 right hand."""
+    @property
+    def vertex_parts(self) -> npt.NDArray[np.uint8]:
+        """Part of each vertex ``(V,)``: 0 body, 1 face, 2 left hand, 3 right hand (the
+        highest-priority part among its edges: hands, face, body)."""
+    @property
+    def regions(self) -> dict[str, npt.NDArray[np.int64]]:
+        """Vertex ids of each region ``{name: (n,) int64}``: ``body``, ``face``,
+        ``left_hand``, ``right_hand`` (ascending; a partition of the vertices)."""
 
 class FitResult:
     """One fitted frame."""
