@@ -107,7 +107,12 @@ fn killed_track_resumes_to_the_same_outputs() {
     let (a, b) = (summary(&full), summary(&cut));
     assert_eq!(b["frames"], n);
     assert_eq!(b["per_frame"].as_array().unwrap().len(), n);
-    for key in ["steps_tried", "steps_accepted", "not_converged", "ik_retried"] {
+    for key in [
+        "steps_tried",
+        "steps_accepted",
+        "not_converged",
+        "ik_retried",
+    ] {
         assert_eq!(a[key], b[key], "{key}");
     }
     for (ra, rb) in a["per_frame"]

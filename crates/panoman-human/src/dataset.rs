@@ -369,7 +369,8 @@ pub fn synthesize(
     panoman_mesh::io::remove_stale_temp_files(&path);
     let tmp = temp_path(&path);
     let result = (|| -> Result<u64> {
-        let file = File::create(&tmp).map_err(|e| HumanError::io(&tmp, e))?;
+        // Errors name the output (the temporary file is an implementation detail).
+        let file = File::create(&tmp).map_err(|e| HumanError::io(&path, e))?;
         let mut w = BufWriter::with_capacity(8 << 20, file);
         let io = |e| HumanError::io(&path, e);
         w.write_all(&header).map_err(io)?;
