@@ -497,13 +497,20 @@ def resume_trials(c, ref, n, rng, t_ref):
     for i in range(n):
         base = WORK / f"resume-{i}"
         base.mkdir()
+        # Killed once a random number of frames (1 … N−2) are recorded.
+        target = rng.randint(1, N_FRAMES - 2)
+        rows = base / c.out / "track-resume" / "rows.jsonl"
+        t = time.monotonic()
         p = subprocess.Popen([str(BIN)] + [str(a) for a in c.argv(base)],
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        delay = rng.uniform(0.3 * t_ref, 0.9 * t_ref)
-        time.sleep(delay)
+        while p.poll() is None and time.monotonic() - t < 10 * t_ref:
+            if rows.exists() and rows.read_text().count("\n") >= target:
+                break
+            time.sleep(0.002)
         if p.poll() is None:
             os.kill(p.pid, signal.SIGKILL)
         p.wait()
+        delay = time.monotonic() - t
         done = len(list((base / c.out).glob("*.obj")))
         r = sh(c.argv(base) + ["--resume"], check=False)
         same = all(sha(base / f) == sha(ref / f) for f in c.outputs(ref)
