@@ -24,7 +24,7 @@ fn clip(model: &Model, n: usize) -> Vec<Targets> {
 
 #[test]
 fn restored_tracker_continues_bit_identically() {
-    let model = Model::load(&panoman::training::small_model(None).unwrap()).unwrap();
+    let model = Model::load(panoman::training::small_model(None).unwrap()).unwrap();
     let frames = clip(&model, 8);
     for method in [Method::PanoMan, Method::Lbs] {
         let req = FitRequest {
