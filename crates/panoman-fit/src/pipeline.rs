@@ -573,6 +573,17 @@ pub fn robust_ik(
     Ok((results.swap_remove(best), attempts))
 }
 
+/// What a [`Sequence`] carries from one frame to the next ([`Sequence::state`]).
+#[derive(Clone, Debug, Default)]
+pub struct SequenceState {
+    /// Frames fitted so far.
+    pub frames: usize,
+    /// The last frame's IK state (warm start of the next IK).
+    pub ik: Option<IkState>,
+    /// The last frame's fit (temporal terms, shape α, propagated placement).
+    pub previous: Option<Previous>,
+}
+
 /// Frame-to-frame state of a tracked sequence (paper §5.3 for sequences; Total Capture's
 /// temporal propagation): the previous frame's IK state warm-starts the IK, and its fit gives
 /// the temporal terms, the shape α kept for the sequence and the propagated placement
@@ -622,6 +633,24 @@ impl Sequence {
             state: None,
             previous: None,
         }
+    }
+
+    /// The frame-to-frame state after the frames fitted so far (frame count, last IK state,
+    /// previous fit): with [`Sequence::set_state`] on a sequence of the same options it
+    /// continues exactly as this one would (e.g. a resumed `panoman track`).
+    pub fn state(&self) -> SequenceState {
+        SequenceState {
+            frames: self.frames,
+            ik: self.state.clone(),
+            previous: self.previous.clone(),
+        }
+    }
+
+    /// Replaces the frame-to-frame state (see [`Sequence::state`]).
+    pub fn set_state(&mut self, s: SequenceState) {
+        self.frames = s.frames;
+        self.state = s.ik;
+        self.previous = s.previous;
     }
 
     /// Fits the next frame (`c.previous` is set from the sequence) and records it.

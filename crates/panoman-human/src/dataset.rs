@@ -19,7 +19,9 @@
 //! `dataset.safetensors` (safetensors format, little-endian, tensors in this data order):
 //! `vertices [N, V, 3] f32` (metres, world frame Z up, −Y forward), `theta [N, P] f32`,
 //! `phenotype [N, 6] f32`, `face_units [N, 52] f32`, `identity [N] u32`, `rest_of [N] u32`,
-//! `kind [N] u8`; `__metadata__` holds `format` and `topology_hash`. `theta` row: local Euler
+//! `kind [N] u8`; `__metadata__` holds `format`, `topology_hash` and `description_hash` (FNV-1a
+//! 64 of the `dataset.json` text written with it, so that [`Dataset::open`] refuses a pair of
+//! files from different runs, e.g. a run killed between its two renames). `theta` row: local Euler
 //! angles XYZ (`R = Rz·Ry·Rx`) in **radians** per bone of [`posable_bones`], bone-major
 //! (`P = 3 · 74 = 222`), each bone in its own rest frame (right-side bones are not mirrored:
 //! a mirrored left motion is `(x, −y, −z)`). `phenotype`: gender, age, muscle, weight, height,
@@ -356,7 +358,10 @@ pub fn synthesize(
         kind.push(r.kind);
     }
     let specs = tensor_specs(n, n_v);
-    let header = safetensors_header(&specs, &hash);
+    let counts = plan.counts();
+    let meta = describe(&plan, topology, n_v, faces.len(), &hash, &specs);
+    let text = serde_json::to_string_pretty(&meta).expect("JSON of plain values") + "\n";
+    let header = safetensors_header(&specs, &hash, &description_hash(text.as_bytes()));
 
     let path = out_dir.join(TENSORS_FILE);
     // A killed earlier run may have left its (large) temporary file: remove those of dead
@@ -364,7 +369,8 @@ pub fn synthesize(
     panoman_mesh::io::remove_stale_temp_files(&path);
     let tmp = temp_path(&path);
     let result = (|| -> Result<u64> {
-        let file = File::create(&tmp).map_err(|e| HumanError::io(&tmp, e))?;
+        // Errors name the output (the temporary file is an implementation detail).
+        let file = File::create(&tmp).map_err(|e| HumanError::io(&path, e))?;
         let mut w = BufWriter::with_capacity(8 << 20, file);
         let io = |e| HumanError::io(&path, e);
         w.write_all(&header).map_err(io)?;
@@ -412,9 +418,6 @@ pub fn synthesize(
         HumanError::io(&path, e)
     })?;
 
-    let counts = plan.counts();
-    let meta = describe(&plan, topology, n_v, faces.len(), &hash, &specs);
-    let text = serde_json::to_string_pretty(&meta).expect("JSON of plain values") + "\n";
     write_atomic(&out_dir.join(JSON_FILE), text.as_bytes())?;
     Ok(SynthSummary {
         counts,
@@ -493,9 +496,23 @@ fn dtype_size(dtype: &str) -> usize {
 
 /// The safetensors prefix: `u64` LE header length, then the JSON header (space-padded to a
 /// multiple of 8 bytes), tensors contiguous in `specs` order.
-fn safetensors_header(specs: &[(&str, &str, Vec<usize>)], hash: &str) -> Vec<u8> {
-    let mut s =
-        format!("{{\"__metadata__\":{{\"format\":\"{FORMAT}\",\"topology_hash\":\"{hash}\"}}");
+/// `description_hash` of the tensors' metadata: FNV-1a 64 of the `dataset.json` bytes, hex.
+fn description_hash(json: &[u8]) -> String {
+    let h = json.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &x| {
+        (h ^ u64::from(x)).wrapping_mul(0x0100_0000_01b3)
+    });
+    format!("{h:016x}")
+}
+
+fn safetensors_header(
+    specs: &[(&str, &str, Vec<usize>)],
+    hash: &str,
+    description_hash: &str,
+) -> Vec<u8> {
+    let mut s = format!(
+        "{{\"__metadata__\":{{\"format\":\"{FORMAT}\",\"topology_hash\":\"{hash}\",\
+         \"description_hash\":\"{description_hash}\"}}"
+    );
     let mut offset = 0usize;
     for (name, dtype, shape) in specs {
         let size = shape.iter().product::<usize>() * dtype_size(dtype);
@@ -723,6 +740,20 @@ impl Dataset {
         if st_hash != hash {
             return Err(terr(format!(
                 "topology hash {st_hash:?} differs from {JSON_FILE}'s {hash}"
+            )));
+        }
+        // Written since the files carry it: the pair must come from one run (a run killed
+        // between renaming its tensors and its description leaves a mixed pair).
+        if let Some(d) = md
+            .metadata()
+            .as_ref()
+            .and_then(|m| m.get("description_hash"))
+            && *d != description_hash(text.as_bytes())
+        {
+            return Err(terr(format!(
+                "does not belong to {JSON_FILE} (description hash {d} differs from {}: the two \
+                 files come from different runs, e.g. an interrupted `panoman synth`; run it again)",
+                description_hash(text.as_bytes())
             )));
         }
         let offsets = tensor_offsets(&md, 8 + hlen, n, n_v, 3 * theta_bones.len()).map_err(terr)?;

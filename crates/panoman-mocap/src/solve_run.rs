@@ -347,9 +347,10 @@ fn json_bytes(v: &impl serde::Serialize) -> Vec<u8> {
 /// [`MocapError::Io`] naming the file.
 pub fn write_solve(dir: &Path, out: &SolveOutput, faces: &[[u32; 3]]) -> Result<()> {
     let bone_names = &out.bone_names;
-    let io = |path: PathBuf| {
+    // The writers' errors already start with the file (`<path>: <what>`).
+    let io = |_path: PathBuf| {
         move |e: panoman_mesh::MeshError| MocapError::Invalid {
-            what: format!("{}: {e}", path.display()),
+            what: e.to_string(),
         }
     };
     std::fs::create_dir_all(dir).map_err(|source| MocapError::Io {

@@ -98,7 +98,11 @@ pub struct FitArgs {
     on β and the vertices. Writes DIR/<frame>.obj, DIR/<frame>.params.json and DIR/summary.json\n\
     (per frame: time, LM steps tried/accepted and energies per stage, keypoint residuals,\n\
     `converged`/`reason`; totals over the clip). Frames that fail the quality check are\n\
-    flagged there and counted in a warning; the exit status is 0, or 3 with --strict.")]
+    flagged there and counted in a warning; the exit status is 0, or 3 with --strict.\n\n\
+    After each frame the tracker state is checkpointed in DIR/track-resume/ (state.bin,\n\
+    rows.jsonl); a killed run restarted with --resume goes on after the last complete frame\n\
+    and gives the same files (summary.json covers every frame). One `panoman track` at a time\n\
+    may write DIR (a second one fails at once).")]
 pub struct TrackArgs {
     /// Model file.
     #[arg(long)]
@@ -125,6 +129,12 @@ pub struct TrackArgs {
     /// Exit with status 3 when any frame fails the quality check (default: warn, exit 0).
     #[arg(long)]
     pub strict: bool,
+    /// Continue an interrupted run into the same --out: skip the frames whose outputs the
+    /// checkpoint in DIR/track-resume/ records as complete and go on from its tracker state
+    /// (same outputs as an uninterrupted run, bit for bit); without a checkpoint, start at
+    /// the first frame.
+    #[arg(long)]
+    pub resume: bool,
     /// Asset directory.
     #[arg(long)]
     pub assets: Option<PathBuf>,
@@ -302,14 +312,18 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
     let mut tracker = Tracker::with_fitter(fitter, req, start);
     let setup_s = t_setup.elapsed().as_secs_f64();
     std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
+    let mut resume = ResumeState::open(&a)?;
+    let done = if a.resume {
+        resume.restore(&mut tracker, &frames)?
+    } else {
+        resume.reset()?;
+        0
+    };
     let bar = crate::util::progress_bar(frames.len() as u64, "track");
-    let mut rows = Vec::new();
-    let mut totals = TrackTotals::default();
-    for (f, (path, t)) in frames.iter().zip(&targets).enumerate() {
-        let stem = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| format!("{f:05}"));
+    bar.inc(done as u64);
+    let mut rows: Vec<serde_json::Value> = resume.rows.clone();
+    for (f, (path, t)) in frames.iter().zip(&targets).enumerate().skip(done) {
+        let stem = frame_stem(path, f);
         let out = tracker
             .track(t)
             .map_err(|e| anyhow!("{}", e.in_file(path)))?;
@@ -322,9 +336,14 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
             &a.out.join(format!("{stem}.obj")),
             &TriMesh::new(out.vertices.clone(), model.faces().to_vec()),
         )?;
-        totals.add(&stem, &out.report);
-        rows.push(frame_row(&stem, &out.report));
+        let row = frame_row(&stem, &out.report);
+        resume.record(&tracker, path, &row)?;
+        rows.push(row);
         bar.inc(1);
+    }
+    let mut totals = TrackTotals::default();
+    for r in &rows {
+        totals.add(r);
     }
     bar.finish_and_clear();
     let times: Vec<f64> = rows
@@ -388,15 +407,233 @@ struct TrackTotals {
 }
 
 impl TrackTotals {
-    fn add(&mut self, stem: &str, rep: &FitReport) {
-        let (t, a) = rep.steps();
+    /// Adds one row of [`frame_row`].
+    fn add(&mut self, row: &serde_json::Value) {
+        let n = |k: &str| row[k].as_u64().unwrap_or(0) as usize;
+        let (t, a) = (n("steps_tried"), n("steps_accepted"));
         self.tried += t;
         self.accepted += a;
         self.frames_accepting += usize::from(a > 0);
-        self.retried += usize::from(rep.verdict.retried);
-        if !rep.converged() {
-            self.not_converged.push(stem.to_string());
+        self.retried += usize::from(row["ik_retried"].as_bool().unwrap_or(false));
+        if row["converged"].as_bool() != Some(true) {
+            self.not_converged
+                .push(row["frame"].as_str().unwrap_or_default().to_string());
         }
+    }
+}
+
+/// The output name of frame `f` read from `path`.
+fn frame_stem(path: &Path, f: usize) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| format!("{f:05}"))
+}
+
+/// FNV-1a 64 of `bytes` (identifies the model and frame files of a checkpoint), hex.
+fn fnv1a(bytes: &[u8]) -> String {
+    let h = bytes.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &x| {
+        (h ^ u64::from(x)).wrapping_mul(0x0100_0000_01b3)
+    });
+    format!("{h:016x}")
+}
+
+/// First bytes of DIR/track-resume/state.bin.
+const RESUME_MAGIC: &[u8; 8] = b"PMTRKRS1";
+
+/// The checkpoint of `panoman track` in DIR/track-resume/: `state.bin` (written atomically
+/// after each frame's outputs: magic, a JSON header with the number of complete frames and
+/// what the run depends on, then [`Tracker::checkpoint`]), `rows.jsonl` (one line per frame,
+/// appended and synced before `state.bin` counts it: frame, input hash, summary row) and
+/// `lock` (an exclusive lock held while the run writes DIR).
+struct ResumeState {
+    dir: PathBuf,
+    out: PathBuf,
+    /// What the run depends on besides the frames (model file, options).
+    key: serde_json::Value,
+    /// Summary rows of the complete frames.
+    rows: Vec<serde_json::Value>,
+    _lock: std::fs::File,
+}
+
+impl ResumeState {
+    /// Creates DIR/track-resume/ and takes its lock.
+    fn open(a: &TrackArgs) -> Result<ResumeState> {
+        let dir = a.out.join("track-resume");
+        std::fs::create_dir_all(&dir).with_context(|| {
+            format!("{}: cannot create the checkpoint directory", dir.display())
+        })?;
+        let lock_path = dir.join("lock");
+        let lock = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&lock_path)
+            .with_context(|| lock_path.display().to_string())?;
+        match lock.try_lock() {
+            Ok(()) => {}
+            Err(std::fs::TryLockError::WouldBlock) => {
+                return Err(anyhow!(
+                    "{}: another `panoman track` is writing this directory (lock {} held); \
+                     wait for it or use another --out",
+                    a.out.display(),
+                    lock_path.display()
+                ));
+            }
+            Err(std::fs::TryLockError::Error(e)) => {
+                return Err(anyhow!("{}: cannot lock: {e}", lock_path.display()));
+            }
+        }
+        let model = std::fs::read(&a.model).with_context(|| a.model.display().to_string())?;
+        let key = json!({
+            "model_bytes": model.len(),
+            "model_fnv": fnv1a(&model),
+            "baseline": a.baseline.is_some(),
+            "cold": a.cold,
+            "keypoints_format": a.keypoints_format.map(|f| format!("{f:?}")),
+            "keypoints_unit": format!("{:?}", a.keypoints_unit),
+        });
+        Ok(ResumeState {
+            dir,
+            out: a.out.clone(),
+            key,
+            rows: Vec::new(),
+            _lock: lock,
+        })
+    }
+
+    fn state_path(&self) -> PathBuf {
+        self.dir.join("state.bin")
+    }
+
+    fn rows_path(&self) -> PathBuf {
+        self.dir.join("rows.jsonl")
+    }
+
+    /// A fresh run: no checkpoint, no rows.
+    fn reset(&mut self) -> Result<()> {
+        match std::fs::remove_file(self.state_path()) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(anyhow!("{}: {e}", self.state_path().display())),
+        }
+        crate::util::write_atomic(&self.rows_path(), b"")?;
+        self.rows.clear();
+        Ok(())
+    }
+
+    /// `--resume`: restores the tracker from the checkpoint; returns the number of frames
+    /// already complete (0 without a checkpoint, after [`ResumeState::reset`]).
+    fn restore(&mut self, tracker: &mut Tracker, frames: &[PathBuf]) -> Result<usize> {
+        let sp = self.state_path();
+        let bytes = match std::fs::read(&sp) {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                eprintln!(
+                    "{}: no checkpoint to resume from; tracking from the first frame",
+                    self.out.display()
+                );
+                self.reset()?;
+                return Ok(0);
+            }
+            Err(e) => return Err(anyhow!("{}: {e}", sp.display())),
+        };
+        let bad = |what: &str| {
+            anyhow!(
+                "{}: cannot resume: {what}; run without --resume to start again",
+                sp.display()
+            )
+        };
+        if bytes.len() < 16 || !bytes.starts_with(RESUME_MAGIC) {
+            return Err(bad("not a track checkpoint"));
+        }
+        let hlen = u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes"));
+        let hlen = usize::try_from(hlen)
+            .ok()
+            .filter(|&h| h <= bytes.len() - 16)
+            .ok_or_else(|| bad("truncated checkpoint"))?;
+        let header: serde_json::Value = serde_json::from_slice(&bytes[16..16 + hlen])
+            .map_err(|_| bad("unreadable checkpoint header"))?;
+        if header["key"] != self.key {
+            return Err(bad(
+                "it was written with another model file or other options (--baseline, --cold, \
+                 --keypoints-format, --keypoints-unit)",
+            ));
+        }
+        let done = header["frames_done"]
+            .as_u64()
+            .ok_or_else(|| bad("unreadable checkpoint header"))? as usize;
+        if done > frames.len() {
+            return Err(bad(&format!(
+                "it records {done} frames, --frames has {}",
+                frames.len()
+            )));
+        }
+        let text = std::fs::read_to_string(self.rows_path())
+            .with_context(|| self.rows_path().display().to_string())?;
+        let mut rows = Vec::with_capacity(done);
+        let mut kept = String::new();
+        for (f, line) in text.lines().take(done).enumerate() {
+            let v: serde_json::Value = serde_json::from_str(line)
+                .map_err(|_| bad(&format!("line {} of rows.jsonl is damaged", f + 1)))?;
+            let p = &frames[f];
+            let input = std::fs::read(p).with_context(|| p.display().to_string())?;
+            let stem = frame_stem(p, f);
+            if v["frame"] != stem.as_str() || v["input"] != fnv1a(&input).as_str() {
+                return Err(bad(&format!(
+                    "frame {} ({}) is not the frame tracked there (the frames changed)",
+                    f + 1,
+                    p.display()
+                )));
+            }
+            for file in [format!("{stem}.obj"), format!("{stem}.params.json")] {
+                if !self.out.join(&file).is_file() {
+                    return Err(bad(&format!("{file} of a checkpointed frame is missing")));
+                }
+            }
+            rows.push(v["row"].clone());
+            kept.push_str(line);
+            kept.push('\n');
+        }
+        if rows.len() != done {
+            return Err(bad("rows.jsonl has fewer frames than the checkpoint"));
+        }
+        tracker
+            .restore(&bytes[16 + hlen..])
+            .map_err(|e| bad(&e.to_string()))?;
+        // Lines after the checkpoint (a frame killed before its checkpoint) are dropped.
+        crate::util::write_atomic(&self.rows_path(), kept)?;
+        self.rows = rows;
+        if done > 0 {
+            eprintln!(
+                "{}: resuming after frame {} ({done} of {} frames complete)",
+                self.out.display(),
+                frame_stem(&frames[done - 1], done - 1),
+                frames.len()
+            );
+        }
+        Ok(done)
+    }
+
+    /// Records a frame whose outputs are written: appends its row, then checkpoints.
+    fn record(&mut self, tracker: &Tracker, path: &Path, row: &serde_json::Value) -> Result<()> {
+        use std::io::Write;
+        let input = std::fs::read(path).with_context(|| path.display().to_string())?;
+        let line = json!({"frame": row["frame"], "input": fnv1a(&input), "row": row});
+        let rp = self.rows_path();
+        (|| {
+            let mut f = std::fs::OpenOptions::new().append(true).open(&rp)?;
+            f.write_all((serde_json::to_string(&line)? + "\n").as_bytes())?;
+            f.sync_data()?;
+            anyhow::Ok(())
+        })()
+        .with_context(|| rp.display().to_string())?;
+        self.rows.push(row.clone());
+        let header = serde_json::to_vec(&json!({"frames_done": self.rows.len(), "key": self.key}))?;
+        let mut bytes = RESUME_MAGIC.to_vec();
+        bytes.extend_from_slice(&(header.len() as u64).to_le_bytes());
+        bytes.extend_from_slice(&header);
+        bytes.extend_from_slice(&tracker.checkpoint());
+        crate::util::write_atomic(&self.state_path(), bytes)
     }
 }
 

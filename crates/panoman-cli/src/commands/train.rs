@@ -116,8 +116,13 @@ pub fn run(a: TrainArgs) -> Result<()> {
         let trained = panoman::training::train(&assets, &a.data, &cfg, &mut stage)?;
         let (out, ds, regions) = (trained.output, trained.dataset, trained.regions);
         out.model.save(&a.out)?;
-        write_atomic(&report_path, serde_json::to_string_pretty(&out.report)?)?;
-        (out.model, out.report, ds, regions)
+        // The training report, until the evaluation below completes it: its
+        // `representation_error` is null ("not evaluated yet"), so that a run stopped during
+        // the evaluation does not leave a report that reads as complete.
+        let mut report = out.report;
+        report["representation_error"] = serde_json::Value::Null;
+        write_atomic(&report_path, serde_json::to_string_pretty(&report)?)?;
+        (out.model, report, ds, regions)
     };
     let topo_name = model.topology_name.clone();
     let model = std::sync::Arc::new(model);
