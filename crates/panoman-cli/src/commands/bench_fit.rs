@@ -437,7 +437,23 @@ fn run_fits(
             let kp = f.fit(tg, &FitRequest::default())?;
             let ke = mean_error_mm(&kp.vertices, x);
             kp_errs.push(ke);
-            cases.push(json!({"error_mm": e, "keypoints_only_mm": ke, "ms": ms, "ik_ms": 1e3 * out.report.ik.seconds}));
+            let ik_stages: Vec<Value> = out
+                .report
+                .ik
+                .stages
+                .iter()
+                .map(|s| json!([s.name, 1e3 * s.seconds, s.iterations]))
+                .collect();
+            let shell_stages: Vec<Value> = out
+                .report
+                .stages
+                .iter()
+                .map(|s| json!([s.name, 1e3 * s.seconds]))
+                .collect();
+            cases.push(json!({"error_mm": e, "keypoints_only_mm": ke, "ms": ms,
+                "ik_ms": 1e3 * out.report.ik.seconds, "ik_iterations": out.report.ik.iterations,
+                "ik_stages": ik_stages, "shell_ms": 1e3 * out.report.fit_seconds,
+                "shell_stages": shell_stages}));
         }
         let (e, ke) = (mean(&errs), mean(&kp_errs));
         rep.report_with(
