@@ -53,7 +53,7 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Keep the files the fitting entries write (people's keypoints `personNN.json`, the
-    /// clip's `clip/NNNNN.json`, the scans `scanNN.obj`, the `panoman fit` outputs) here,
+    /// clip's `clip/NNNNN.json`, the scans `scanNN.ply`, the `panoman fit` outputs) here,
     /// e.g. to run another build's `panoman fit` / `panoman track` on them.
     #[arg(long)]
     pub keep: Option<PathBuf>,

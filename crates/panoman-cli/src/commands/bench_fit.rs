@@ -236,12 +236,17 @@ fn scan(truth: &[V3], faces: &[[u32; 3]], n: usize, sigma: f64, rng: &mut XorShi
     pts.into_iter().filter(|p| p[1] <= cut).collect()
 }
 
-/// Writes points as OBJ vertices (readable by `panoman fit --points`).
+/// Writes points as an ASCII PLY point cloud (readable by `panoman fit --points`).
 fn write_points(path: &Path, pts: &[V3]) -> Result<()> {
     use std::fmt::Write as _;
-    let mut s = String::with_capacity(40 * pts.len());
+    let mut s = String::with_capacity(40 * pts.len() + 128);
+    let _ = write!(
+        s,
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\nend_header\n",
+        pts.len()
+    );
     for p in pts {
-        let _ = writeln!(s, "v {:.6} {:.6} {:.6}", p[0], p[1], p[2]);
+        let _ = writeln!(s, "{:.6} {:.6} {:.6}", p[0], p[1], p[2]);
     }
     crate::util::write_atomic(path, s)
 }
@@ -418,7 +423,9 @@ fn run_fits(
                 rng.gauss();
             }
             if a.keep.is_some() {
-                write_points(&dir.join(format!("scan{i:02}.obj")), &pts)?;
+                tg.keypoints
+                    .write(&dir.join(format!("person{i:02}.json")))?;
+                write_points(&dir.join(format!("scan{i:02}.ply")), &pts)?;
             }
             npts = pts.len();
             let with = Targets {
