@@ -18,8 +18,8 @@
 //!
 //! and timings: the point model of the first pass's matches (`IkSolver::model_points`), one
 //! warm-started solve with them (20 iterations at most), `ik_icp` and `fit_frame` in total.
-//! Options: `passes=3 sigma=0.003 plane=1 iters=20 starts=1` (skeletal ICP), `icpp=2` (the
-//! shell fit's ICP passes); `check=1` prints full-precision
+//! Options: `passes=3 sigma=0.003 plane=1 iters=20 starts=1` (skeletal ICP), `icpp=1` (the
+//! shell fit's ICP passes after the skeletal ICP); `check=1` prints full-precision
 //! keypoint-only IK results (for bitwise comparisons of the solver).
 use panoman_fit::fit::FitOptions;
 use panoman_fit::icp::{VertexFaces, correspondences_on};
@@ -238,7 +238,8 @@ fn main() {
         let t_icp = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let opts_pts = FitOptions {
-            icp_passes: arg(&a, "icpp", opts.icp_passes),
+            icp_passes: arg(&a, "icpp", opts.icp_passes_after_skeletal),
+            icp_passes_after_skeletal: arg(&a, "icpp", opts.icp_passes_after_skeletal),
             ..opts.clone()
         };
         let (_, pm_pts) = fit_frame(&rig, &ik, &mut fitter, &cp, &ikc, &opts_pts, None).unwrap();

@@ -431,6 +431,16 @@ pub fn fit_frame(
         r = ik_icp(rig, ik, c, ik_cfg, &r, &icp)?.0;
     }
     let init = init_of(&r, ik, rig.generator.bone_names());
+    let after_skeletal;
+    let opts = if c.points.is_some() {
+        after_skeletal = FitOptions {
+            icp_passes: opts.icp_passes_after_skeletal,
+            ..opts.clone()
+        };
+        &after_skeletal
+    } else {
+        opts
+    };
     let mut fit = fitter.fit(c, &init, opts)?;
     let chosen = attempts.iter().find(|a| a.chosen);
     let mut problems: Vec<String> = chosen
