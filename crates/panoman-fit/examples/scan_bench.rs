@@ -18,8 +18,8 @@
 //!
 //! and timings: the point model of the first pass's matches (`IkSolver::model_points`), one
 //! warm-started solve with them (20 iterations at most), `ik_icp` and `fit_frame` in total.
-//! Options: `passes=3 sigma=0.003 plane=1 iters=20 starts=1` (skeletal ICP), `icpp=2` (the
-//! shell fit's ICP passes); `check=1` prints full-precision
+//! Options: `passes=3 sigma=0.003 plane=1 iters=20 starts=1` (skeletal ICP), `icpp=1` (the
+//! shell fit's ICP passes after the skeletal ICP); `check=1` prints full-precision
 //! keypoint-only IK results (for bitwise comparisons of the solver).
 use panoman_fit::fit::FitOptions;
 use panoman_fit::icp::{VertexFaces, correspondences_on};
@@ -108,6 +108,8 @@ fn main() {
         point_sigma: arg(&a, "sigma", defaults.point_sigma),
         point_to_plane: arg(&a, "plane", 1) == 1,
         iterations: arg(&a, "iters", defaults.iterations),
+        screen_iterations: arg(&a, "siters", defaults.screen_iterations),
+        screen_points: arg(&a, "spts", defaults.screen_points),
         phenotype_starts: if arg(&a, "starts", 1) == 1 {
             defaults.phenotype_starts.clone()
         } else {
@@ -162,6 +164,7 @@ fn main() {
     let mut rng = Rng(12345);
     let mut sums = [0.0f64; 5];
     let mut times = [0.0f64; 5];
+    let mut sums_icp = (0.0f64, 0.0f64);
     println!(
         "row: lbs pm-kp old | ik-icp pm-pts (mm) | setup N pts, warm solve (it), ik-icp, fit_frame"
     );
@@ -235,11 +238,39 @@ fn main() {
         let t_icp = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let opts_pts = FitOptions {
-            icp_passes: arg(&a, "icpp", opts.icp_passes),
+            icp_passes: arg(&a, "icpp", opts.icp_passes_after_skeletal),
+            icp_passes_after_skeletal: arg(&a, "icpp", opts.icp_passes_after_skeletal),
             ..opts.clone()
         };
         let (_, pm_pts) = fit_frame(&rig, &ik, &mut fitter, &cp, &ikc, &opts_pts, None).unwrap();
         let t_frame = t.elapsed().as_secs_f64();
+        // The shell fit from this run's skeletal ICP (fit_frame's path with these options).
+        let t = Instant::now();
+        let (icp2, _) = ik_icp(&rig, &ik, &cp, &ikc, &ikr, &icp_opts).unwrap();
+        let init = init_of(&icp2, &ik, rig.generator.bone_names());
+        let pm_icp = fitter.fit(&cp, &init, &opts_pts).unwrap();
+        let t_pm_icp = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        for _ in 0..10 {
+            std::hint::black_box(correspondences_on(
+                faces,
+                &vf,
+                &icp2.posed,
+                &pts,
+                None,
+                1.0,
+                &Default::default(),
+            ));
+        }
+        let t_match = t.elapsed().as_secs_f64() / 10.0;
+        println!(
+            "  pm-icp (these options): {:.2} mm in {:.2} s (skeletal ICP + shell fit); one matching {:.1} ms",
+            err(&pm_icp.vertices),
+            t_pm_icp,
+            1e3 * t_match
+        );
+        sums_icp.0 += err(&pm_icp.vertices);
+        sums_icp.1 += t_pm_icp;
         let e = [
             err(&ikr.posed),
             err(&pm_kp.vertices),
@@ -268,6 +299,11 @@ fn main() {
         );
     }
     let n = n_rows as f64;
+    println!(
+        "mean pm-icp (these options): {:.2} mm, {:.2} s",
+        sums_icp.0 / n,
+        sums_icp.1 / n
+    );
     println!(
         "mean: lbs {:.2} pm-kp {:.2} old {:.2} | ik-icp {:.2} pm-pts {:.2} | setup {:.0} ms, warm solve {:.0} ms ({:.1} it), ik-icp {:.0} ms, fit_frame {:.2} s",
         sums[0] / n,

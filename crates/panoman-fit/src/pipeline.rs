@@ -207,6 +207,11 @@ pub struct IkIcpOptions {
     /// solved (in parallel) and the one whose mesh fits the scan and keypoints best (see
     /// [`ik_icp`]) is kept. Default: muscle × weight ∈ {0.2, 0.8}²; empty: no restarts.
     pub phenotype_starts: Vec<[Option<f64>; 6]>,
+    /// Levenberg–Marquardt iteration cap of each screened start's solve (on the subsample,
+    /// before the chosen one is re-solved on all points). Default 20.
+    pub screen_iterations: usize,
+    /// Points of the subsample the starts are screened on (about). Default 1,000.
+    pub screen_points: usize,
 }
 
 impl Default for IkIcpOptions {
@@ -224,6 +229,8 @@ impl Default for IkIcpOptions {
             phenotype_starts: [(0.2, 0.2), (0.2, 0.8), (0.8, 0.2), (0.8, 0.8)]
                 .map(|(m, w)| [None, None, Some(m), Some(w), None, None])
                 .to_vec(),
+            screen_iterations: 20,
+            screen_points: 1000,
         }
     }
 }
@@ -339,9 +346,8 @@ pub fn ik_icp(
         let points = to_targets(cons);
         if pass == 0 && cfg.fit_phenotype && !opts.phenotype_starts.is_empty() {
             // Every start (the current state first) on a subsample of about
-            // `SCREEN_POINTS` points, weights scaled to keep the points' total weight.
-            const SCREEN_POINTS: usize = 1000;
-            let k = points.len().div_ceil(SCREEN_POINTS).max(1);
+            // `screen_points` points, weights scaled to keep the points' total weight.
+            let k = points.len().div_ceil(opts.screen_points.max(1)).max(1);
             let sub: Vec<PointTarget> = points
                 .iter()
                 .step_by(k)
@@ -363,7 +369,12 @@ pub fn ik_icp(
             let results = starts
                 .par_iter()
                 .map(|s| {
-                    let r = solve(s, &sub)?;
+                    let cfg = IkConfig {
+                        initial_state: Some(s.clone()),
+                        max_iterations: opts.screen_iterations,
+                        ..cfg.clone()
+                    };
+                    let r = ik.solve_with_points(&targets, &sub, &cfg)?;
                     let sc = score(&r);
                     Ok((r, sc))
                 })
@@ -420,6 +431,16 @@ pub fn fit_frame(
         r = ik_icp(rig, ik, c, ik_cfg, &r, &icp)?.0;
     }
     let init = init_of(&r, ik, rig.generator.bone_names());
+    let after_skeletal;
+    let opts = if c.points.is_some() {
+        after_skeletal = FitOptions {
+            icp_passes: opts.icp_passes_after_skeletal,
+            ..opts.clone()
+        };
+        &after_skeletal
+    } else {
+        opts
+    };
     let mut fit = fitter.fit(c, &init, opts)?;
     let chosen = attempts.iter().find(|a| a.chosen);
     let mut problems: Vec<String> = chosen

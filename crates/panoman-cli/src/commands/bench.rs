@@ -31,20 +31,76 @@ pub struct BenchArgs {
     /// Asset directory (default: $PANOMAN_ASSETS, else the user cache directory).
     #[arg(long)]
     pub assets: Option<PathBuf>,
+    /// A model file (`panoman train`): adds the model and fitting entries (`model_load`,
+    /// `pose`, `encode`, `fit_cold`, `track_warm`, `fit_process`, `fit_scan`); without it they
+    /// are skipped.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// The model's dataset: `fit_cold`, `fit_process` and `fit_scan` fit its held-out body
+    /// rows (the people `panoman eval` fits); without it, people drawn by the clip sampler.
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Only these entries (comma-separated names, e.g. `pose,fit_cold`).
+    #[arg(long, value_delimiter = ',')]
+    pub only: Option<Vec<String>>,
+    /// People of `fit_cold`, `fit_process` and `fit_scan` (each fitted once; ≥ 1).
+    #[arg(long, default_value_t = 10)]
+    pub people: usize,
+    /// Frames of the `track_warm` clip (≥ 2; `panoman eval` tracks 72).
+    #[arg(long, default_value_t = 72)]
+    pub clip_frames: usize,
+    /// Seed of the clip, the scan and the drawn people (`panoman eval`'s default is 0).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Keep the files the fitting entries write (people's keypoints `personNN.json`, the
+    /// clip's `clip/NNNNN.json`, the scans `scanNN.ply`, the `panoman fit` outputs) here,
+    /// e.g. to run another build's `panoman fit` / `panoman track` on them.
+    #[arg(long)]
+    pub keep: Option<PathBuf>,
 }
 
-struct Reporter {
-    json: bool,
+pub(crate) struct Reporter {
+    pub(crate) json: bool,
+    pub(crate) only: Option<Vec<String>>,
 }
 
 impl Reporter {
-    fn report(&self, name: &str, times: &[f64], note: &str) {
+    /// Whether entry `name` is wanted (`--only`).
+    pub(crate) fn wants(&self, name: &str) -> bool {
+        self.only
+            .as_ref()
+            .is_none_or(|o| o.iter().any(|n| n == name))
+    }
+
+    /// Whether any entry whose name starts with one of `prefixes` is wanted.
+    pub(crate) fn wants_prefix(&self, prefixes: &[&str]) -> bool {
+        self.only
+            .as_ref()
+            .is_none_or(|o| o.iter().any(|n| prefixes.iter().any(|p| n.starts_with(p))))
+    }
+
+    pub(crate) fn report(&self, name: &str, times: &[f64], note: &str) {
+        self.report_with(name, times, note, serde_json::Map::new());
+    }
+
+    /// [`Reporter::report`] with extra JSON fields (accuracy, throughput).
+    pub(crate) fn report_with(
+        &self,
+        name: &str,
+        times: &[f64],
+        note: &str,
+        extra: serde_json::Map<String, serde_json::Value>,
+    ) {
+        if !self.wants(name) {
+            return;
+        }
         let (med, min, max) = median_min_max(times);
         if self.json {
-            println!(
-                "{}",
-                json!({"name": name, "median_ms": med, "min_ms": min, "max_ms": max, "runs": times.len()})
-            );
+            let mut o = json!({"name": name, "median_ms": med, "min_ms": min, "max_ms": max, "runs": times.len()});
+            if let Some(m) = o.as_object_mut() {
+                m.extend(extra);
+            }
+            println!("{o}");
         } else {
             println!(
                 "{name:<16} median {med:>9.3} ms   min {min:>9.3}   max {max:>9.3}   ({} runs) {note}",
@@ -56,15 +112,53 @@ impl Reporter {
 
 /// Runs `panoman bench`.
 pub fn run(a: BenchArgs) -> Result<()> {
+    let rep = Reporter {
+        json: a.json,
+        only: a.only.clone(),
+    };
+    let runs = a.runs.max(1);
+    if rep.wants_prefix(&["setup_", "rla_", "g_", "obj_", "ply_", "gen_"]) {
+        bench_kernels(&rep, &a, runs)?;
+    }
+    match &a.model {
+        Some(m) => super::bench_fit::run(&rep, &a, m, runs)?,
+        None => {
+            if rep.wants_prefix(super::bench_fit::NAMES) {
+                eprintln!(
+                    "note: the model and fitting entries ({}) need --model M.safetensors; skipped",
+                    super::bench_fit::NAMES.join(", ")
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The kernel entries: topology setup, RLA, `g`, mesh I/O, the generator.
+fn bench_kernels(rep: &Reporter, a: &BenchArgs, runs: usize) -> Result<()> {
     let assets = crate::util::open_assets(a.assets.as_deref())?;
     let full = full_template(&assets)?;
     let small = small_template(&assets, &full)?;
-    let rep = Reporter { json: a.json };
-    let runs = a.runs.max(1);
     for (tag, mesh) in [("full", &full.mesh), ("small", &small.mesh)] {
-        bench_topology(&rep, tag, mesh, runs)?;
+        if rep.wants_prefix(&[
+            &format!("setup_{tag}"),
+            &format!("rla_{tag}"),
+            &format!("g_{tag}"),
+        ]) {
+            bench_topology(rep, tag, mesh, runs)?;
+        }
     }
-    // Mesh I/O at full resolution.
+    if rep.wants_prefix(&["obj_", "ply_"]) {
+        bench_io(rep, &full, runs)?;
+    }
+    if rep.wants_prefix(&["gen_"]) {
+        bench_generator(rep, &assets, &full, &small, runs)?;
+    }
+    Ok(())
+}
+
+/// Mesh I/O at full resolution.
+fn bench_io(rep: &Reporter, full: &Template, runs: usize) -> Result<()> {
     let dir = std::env::temp_dir().join(format!("panoman-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let obj = dir.join("t.obj");
@@ -90,7 +184,6 @@ pub fn run(a: BenchArgs) -> Result<()> {
     });
     rep.report("ply_read_full", &t, "(binary)");
     let _ = std::fs::remove_dir_all(&dir);
-    bench_generator(&rep, &assets, &full, &small, runs)?;
     Ok(())
 }
 

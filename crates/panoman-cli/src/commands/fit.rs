@@ -107,9 +107,14 @@ pub struct TrackArgs {
     /// Model file.
     #[arg(long)]
     pub model: PathBuf,
-    /// Directory of keypoint files (*.json), one per frame.
-    #[arg(long)]
-    pub frames: PathBuf,
+    /// Directory of keypoint files (*.json), one per frame; or a directory of such sequence
+    /// directories. Repeat for several sequences (each tracked in order into `--out/<name>/`).
+    #[arg(long, required = true)]
+    pub frames: Vec<PathBuf>,
+    /// Sequences tracked in parallel (each sequence in order on one worker with its own
+    /// fitter; the results are those of tracking them one by one).
+    #[arg(long, default_value_t = 1)]
+    pub jobs: usize,
     /// Layout of the keypoint files: tc127, openpose or panoptic (default: detected).
     #[arg(long)]
     pub keypoints_format: Option<KeypointFormat>,
@@ -283,18 +288,127 @@ fn print_summary(rep: &FitReport, setup_s: f64, out: &Path) {
 pub fn run_track(a: TrackArgs) -> Result<()> {
     let t_setup = Instant::now();
     let model = Model::load(&a.model)?;
-    let mut frames: Vec<PathBuf> = std::fs::read_dir(&a.frames)
-        .with_context(|| a.frames.display().to_string())?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "json"))
-        .collect();
-    frames.sort();
-    if frames.is_empty() {
-        return Err(anyhow!(
-            "{}: no keypoint files (*.json) in the directory",
-            a.frames.display()
-        ));
+    let seqs = sequences(&a.frames)?;
+    if seqs.len() == 1 && a.jobs <= 1 {
+        let summary = track_sequence(&a, &model, &seqs[0].1, &a.out, t_setup, None)?;
+        return summary.finish(&a);
     }
+    track_sequences(&a, &model, &seqs, t_setup)
+}
+
+/// The sequences of `--frames`: each directory with keypoint files (*.json) is one; a
+/// directory without any is a directory of sequences (its subdirectories with keypoint
+/// files, in name order). Returns (name, frame files in name order).
+fn sequences(dirs: &[PathBuf]) -> Result<Vec<(String, Vec<PathBuf>)>> {
+    let json_files = |d: &Path| -> Result<Vec<PathBuf>> {
+        let mut f: Vec<PathBuf> = std::fs::read_dir(d)
+            .with_context(|| d.display().to_string())?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "json"))
+            .collect();
+        f.sort();
+        Ok(f)
+    };
+    let name_of = |d: &Path| {
+        d.file_name()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "sequence".into())
+    };
+    let mut out = Vec::new();
+    for d in dirs {
+        let files = json_files(d)?;
+        if !files.is_empty() {
+            out.push((name_of(d), files));
+            continue;
+        }
+        let mut subs: Vec<PathBuf> = std::fs::read_dir(d)
+            .with_context(|| d.display().to_string())?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_dir())
+            .collect();
+        subs.sort();
+        let before = out.len();
+        for s in subs {
+            let files = json_files(&s)?;
+            if !files.is_empty() {
+                out.push((name_of(&s), files));
+            }
+        }
+        if out.len() == before {
+            return Err(anyhow!(
+                "{}: no keypoint files (*.json) in the directory or its subdirectories",
+                d.display()
+            ));
+        }
+    }
+    // Output directories are named after the sequences: make the names unique.
+    let mut seen = std::collections::BTreeMap::<String, usize>::new();
+    for (name, _) in out.iter_mut() {
+        let n = seen.entry(name.clone()).or_default();
+        *n += 1;
+        if *n > 1 {
+            *name = format!("{name}-{n}");
+        }
+    }
+    Ok(out)
+}
+
+/// What one tracked sequence reports (its summary.json is written).
+struct SequenceSummary {
+    out: PathBuf,
+    frames: usize,
+    /// Frames fitted by this run (all but those restored by `--resume`).
+    fitted: usize,
+    first_s: f64,
+    warm: (f64, f64, f64),
+    wall_s: f64,
+    not_converged: Vec<String>,
+}
+
+impl SequenceSummary {
+    /// Prints the one-line summary and the not-converged warning (an error with --strict).
+    fn finish(&self, a: &TrackArgs) -> Result<()> {
+        println!(
+            "{}: {} frames; first {:.2} s, then median {:.0} ms per frame (min {:.0}, max {:.0}); {:.2} frames/s",
+            self.out.display(),
+            self.frames,
+            self.first_s,
+            self.warm.0 * 1e3,
+            self.warm.1 * 1e3,
+            self.warm.2 * 1e3,
+            self.fitted as f64 / self.wall_s
+        );
+        if !self.not_converged.is_empty() {
+            let message = format!(
+                "{}: {} of {} frames did not converge ({}); see not_converged_frames in summary.json",
+                self.out.display(),
+                self.not_converged.len(),
+                self.frames,
+                self.not_converged.join(", ")
+            );
+            if a.strict {
+                return Err(crate::util::WarnExit {
+                    code: crate::util::EXIT_NOT_CONVERGED,
+                    message,
+                }
+                .into());
+            }
+            eprintln!("warning: {message}");
+        }
+        Ok(())
+    }
+}
+
+/// Tracks one sequence (`frames` in order) into `out`; `t_setup` is when its setup began
+/// (summary.json's `setup_seconds`). `bar`: a shared progress bar (else one of its own).
+fn track_sequence(
+    a: &TrackArgs,
+    model: &Model,
+    frames: &[PathBuf],
+    out_dir: &Path,
+    t_setup: Instant,
+    bar: Option<&indicatif::ProgressBar>,
+) -> Result<SequenceSummary> {
     let targets: Vec<Targets> = frames
         .iter()
         .map(|p| read_keypoints(p, a.keypoints_format, a.keypoints_unit))
@@ -308,18 +422,23 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
         ..Default::default()
     };
     let start = if a.cold { IkStart::Cold } else { IkStart::Warm };
-    let fitter = Fitter::with_assets(&model, a.assets.as_deref())?;
+    let fitter = Fitter::with_assets(model, a.assets.as_deref())?;
     let mut tracker = Tracker::with_fitter(fitter, req, start);
     let setup_s = t_setup.elapsed().as_secs_f64();
-    std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
-    let mut resume = ResumeState::open(&a)?;
+    std::fs::create_dir_all(out_dir).with_context(|| out_dir.display().to_string())?;
+    let mut resume = ResumeState::open(a, out_dir)?;
     let done = if a.resume {
-        resume.restore(&mut tracker, &frames)?
+        resume.restore(&mut tracker, frames)?
     } else {
         resume.reset()?;
         0
     };
-    let bar = crate::util::progress_bar(frames.len() as u64, "track");
+    let own_bar = bar
+        .is_none()
+        .then(|| crate::util::progress_bar(frames.len() as u64, "track"));
+    let Some(bar) = bar.or(own_bar.as_ref()) else {
+        return Err(anyhow!("no progress bar"));
+    };
     bar.inc(done as u64);
     let mut rows: Vec<serde_json::Value> = resume.rows.clone();
     for (f, (path, t)) in frames.iter().zip(&targets).enumerate().skip(done) {
@@ -328,12 +447,12 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
             .track(t)
             .map_err(|e| anyhow!("{}", e.in_file(path)))?;
         write_params(
-            &a.out.join(format!("{stem}.params.json")),
+            &out_dir.join(format!("{stem}.params.json")),
             &out,
             tracker.fitter(),
         )?;
         io::write_mesh(
-            &a.out.join(format!("{stem}.obj")),
+            &out_dir.join(format!("{stem}.obj")),
             &TriMesh::new(out.vertices.clone(), model.faces().to_vec()),
         )?;
         let row = frame_row(&stem, &out.report);
@@ -345,19 +464,25 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
     for r in &rows {
         totals.add(r);
     }
-    bar.finish_and_clear();
+    if let Some(b) = &own_bar {
+        b.finish_and_clear();
+    }
     let times: Vec<f64> = rows
         .iter()
         .map(|r| r["seconds"].as_f64().unwrap_or(0.0))
         .collect();
     let warm: Vec<f64> = times.iter().skip(1).copied().collect();
     let (med, min, max) = crate::util::median_min_max(&warm);
+    let wall_s = t_setup.elapsed().as_secs_f64();
     let summary = json!({
         "method": if a.baseline.is_some() { "lbs" } else { "panoman" },
         "setup_seconds": setup_s,
         "frames": rows.len(),
         "first_frame_seconds": times[0],
         "warm_seconds": {"median": med, "min": min, "max": max},
+        "wall_seconds": wall_s,
+        "frames_per_second": (rows.len() - done) as f64 / wall_s,
+        "resumed_after_frames": done,
         "steps_tried": totals.tried,
         "steps_accepted": totals.accepted,
         "frames_with_accepted_steps": totals.frames_accepting,
@@ -366,33 +491,100 @@ pub fn run_track(a: TrackArgs) -> Result<()> {
         "ik_retried": totals.retried,
         "per_frame": rows,
     });
-    write_json(&a.out.join("summary.json"), &summary)?;
-    println!(
-        "{}: {} frames; first {:.2} s, then median {:.0} ms per frame (min {:.0}, max {:.0})",
-        a.out.display(),
-        times.len(),
-        times[0],
-        med * 1e3,
-        min * 1e3,
-        max * 1e3
-    );
-    if !totals.not_converged.is_empty() {
-        let message = format!(
-            "{}: {} of {} frames did not converge ({}); see not_converged_frames in summary.json",
-            a.out.display(),
-            totals.not_converged.len(),
-            rows.len(),
-            totals.not_converged.join(", ")
-        );
-        if a.strict {
-            return Err(crate::util::WarnExit {
-                code: crate::util::EXIT_NOT_CONVERGED,
-                message,
-            }
-            .into());
+    write_json(&out_dir.join("summary.json"), &summary)?;
+    Ok(SequenceSummary {
+        out: out_dir.to_path_buf(),
+        frames: times.len(),
+        fitted: rows.len() - done,
+        first_s: times[0],
+        warm: (med, min, max),
+        wall_s,
+        not_converged: totals.not_converged,
+    })
+}
+
+/// Several sequences (or one with `--jobs`): `--jobs` workers each take the next sequence and
+/// track it in order into `--out/<name>/`; `--out/summary.json` has the totals and the
+/// throughput (frames per second of wall time, model load included).
+fn track_sequences(
+    a: &TrackArgs,
+    model: &Model,
+    seqs: &[(String, Vec<PathBuf>)],
+    t_start: Instant,
+) -> Result<()> {
+    let jobs = a.jobs.max(1).min(seqs.len());
+    let n_frames: usize = seqs.iter().map(|s| s.1.len()).sum();
+    let bar = crate::util::progress_bar(n_frames as u64, "track");
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let mut results: Vec<Option<Result<SequenceSummary>>> = (0..seqs.len()).map(|_| None).collect();
+    let slots = std::sync::Mutex::new(&mut results);
+    std::thread::scope(|scope| {
+        for _ in 0..jobs {
+            scope.spawn(|| {
+                loop {
+                    let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    if i >= seqs.len() {
+                        break;
+                    }
+                    let (name, frames) = &seqs[i];
+                    let r = track_sequence(
+                        a,
+                        model,
+                        frames,
+                        &a.out.join(name),
+                        Instant::now(),
+                        Some(&bar),
+                    );
+                    let failed = r.is_err();
+                    if let Ok(mut s) = slots.lock() {
+                        s[i] = Some(r);
+                    }
+                    if failed {
+                        // Stop handing out sequences after an error.
+                        next.store(seqs.len(), std::sync::atomic::Ordering::Relaxed);
+                    }
+                }
+            });
         }
-        eprintln!("warning: {message}");
+    });
+    bar.finish_and_clear();
+    let wall_s = t_start.elapsed().as_secs_f64();
+    let mut done = Vec::new();
+    for (r, (name, _)) in results.into_iter().zip(seqs) {
+        match r {
+            Some(Ok(s)) => done.push((name, s)),
+            Some(Err(e)) => return Err(e.context(format!("sequence {name}"))),
+            None => {}
+        }
     }
+    let not_converged: usize = done.iter().map(|(_, s)| s.not_converged.len()).sum();
+    let summary = json!({
+        "sequences": done.iter().map(|(name, s)| json!({
+            "name": name,
+            "out": s.out.display().to_string(),
+            "frames": s.frames,
+            "first_frame_seconds": s.first_s,
+            "warm_seconds": {"median": s.warm.0, "min": s.warm.1, "max": s.warm.2},
+            "wall_seconds": s.wall_s,
+            "not_converged": s.not_converged.len(),
+        })).collect::<Vec<_>>(),
+        "jobs": jobs,
+        "frames": n_frames,
+        "wall_seconds": wall_s,
+        "frames_per_second": n_frames as f64 / wall_s,
+        "not_converged": not_converged,
+    });
+    std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
+    write_json(&a.out.join("summary.json"), &summary)?;
+    for (_, s) in &done {
+        s.finish(a)?;
+    }
+    println!(
+        "{}: {} sequences, {n_frames} frames on {jobs} workers in {wall_s:.2} s: {:.2} frames/s",
+        a.out.display(),
+        done.len(),
+        n_frames as f64 / wall_s
+    );
     Ok(())
 }
 
@@ -457,8 +649,8 @@ struct ResumeState {
 
 impl ResumeState {
     /// Creates DIR/track-resume/ and takes its lock.
-    fn open(a: &TrackArgs) -> Result<ResumeState> {
-        let dir = a.out.join("track-resume");
+    fn open(a: &TrackArgs, out_dir: &Path) -> Result<ResumeState> {
+        let dir = out_dir.join("track-resume");
         std::fs::create_dir_all(&dir).with_context(|| {
             format!("{}: cannot create the checkpoint directory", dir.display())
         })?;
@@ -475,7 +667,7 @@ impl ResumeState {
                 return Err(anyhow!(
                     "{}: another `panoman track` is writing this directory (lock {} held); \
                      wait for it or use another --out",
-                    a.out.display(),
+                    out_dir.display(),
                     lock_path.display()
                 ));
             }
@@ -494,7 +686,7 @@ impl ResumeState {
         });
         Ok(ResumeState {
             dir,
-            out: a.out.clone(),
+            out: out_dir.to_path_buf(),
             key,
             rows: Vec::new(),
             _lock: lock,

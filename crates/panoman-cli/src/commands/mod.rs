@@ -2,6 +2,7 @@
 
 pub mod assets;
 pub mod bench;
+pub mod bench_fit;
 pub mod components;
 pub mod data;
 pub mod demo;

@@ -1,0 +1,477 @@
+//! `panoman bench --model M`: the model and fitting entries, on data generated the way
+//! `panoman eval` generates it (its held-out people, its clip, the scan of `scan_bench`).
+
+use super::bench::{BenchArgs, Reporter};
+use crate::util::{SplitMix, median_min_max, time_runs};
+use anyhow::{Context, Result, anyhow};
+use panoman::{
+    Correction, FitRequest, Fitter, IkStart, Model, Params, PointCloud, Targets, Tracker,
+};
+use panoman_human::clip::{Clip, ClipConfig};
+use panoman_human::dataset::Dataset;
+use panoman_mesh::geom::{V3, cross, norm, sub};
+use serde_json::{Map, Value, json};
+use std::path::Path;
+use std::time::Instant;
+
+/// The entries of this module, in the order they run.
+pub(crate) const NAMES: &[&str] = &[
+    "model_load",
+    "pose",
+    "encode",
+    "fit_cold",
+    "track_warm",
+    "fit_process",
+    "fit_scan",
+];
+
+/// Three seeded random parameter sets: α ~ N(0, 1) (unit variance on the training
+/// identities), each β coefficient uniform in the middle half of its training range.
+fn random_params(model: &Model, seed: u64) -> Vec<Params> {
+    let mut rng = SplitMix(seed);
+    let mut u = move || (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+    (0..3)
+        .map(|_| Params {
+            alpha: (0..model.n_shape())
+                .map(|_| {
+                    let (a, b) = (u().max(1e-300), u());
+                    (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+                })
+                .collect(),
+            beta: model
+                .inner()
+                .blocks
+                .iter()
+                .map(|b| {
+                    let beta = b
+                        .beta_range
+                        .iter()
+                        .map(|r| {
+                            let (lo, hi) = (f64::from(r[0]), f64::from(r[1]));
+                            0.5 * (lo + hi) + 0.25 * (hi - lo) * (2.0 * u() - 1.0)
+                        })
+                        .collect();
+                    (b.name.clone(), beta)
+                })
+                .collect(),
+            ..Default::default()
+        })
+        .collect()
+}
+
+/// Runs the model and fitting entries `rep` wants on the model file `path`.
+pub(crate) fn run(rep: &Reporter, a: &BenchArgs, path: &Path, runs: usize) -> Result<()> {
+    if rep.wants("model_load") {
+        let t = time_runs(0, runs, || {
+            std::hint::black_box(Model::load(path).expect("model load"));
+        });
+        rep.report(
+            "model_load",
+            &t,
+            "(read + validate + topology tables and factorizations)",
+        );
+    }
+    let t0 = Instant::now();
+    let model = Model::load(path)?;
+    let load_s = t0.elapsed().as_secs_f64();
+    if !rep.json {
+        println!(
+            "model {} ({} topology, {} vertices, loaded in {load_s:.2} s)",
+            path.display(),
+            model.topology_name(),
+            model.n_vertices()
+        );
+    }
+    let params = random_params(&model, a.seed ^ 0x5eed);
+    if rep.wants("pose") {
+        let mut k = 0;
+        let t = time_runs(1, runs, || {
+            let v = model
+                .pose(&params[k % params.len()], Correction::Apply)
+                .expect("pose");
+            std::hint::black_box(v.len());
+            k += 1;
+        });
+        let extra = json!({"vertices": model.n_vertices(), "batch": 1});
+        rep.report_with(
+            "pose",
+            &t,
+            "(Model::pose, B = 1, correction on, random α/β)",
+            obj(extra),
+        );
+    }
+    if !rep.wants_prefix(&["encode", "fit_", "track_"]) {
+        return Ok(());
+    }
+    let people = people(&model, a)?;
+    let dir = match &a.keep {
+        Some(d) => d.clone(),
+        None => std::env::temp_dir().join(format!("panoman-bench-fit-{}", std::process::id())),
+    };
+    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+    let result = run_fits(rep, a, path, &model, &people, &dir, runs);
+    if a.keep.is_none() {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    result
+}
+
+fn obj(v: Value) -> Map<String, Value> {
+    v.as_object().cloned().unwrap_or_default()
+}
+
+/// Mean per-vertex distance (mm).
+fn mean_error_mm(x: &[V3], truth: &[V3]) -> f64 {
+    1e3 * x
+        .iter()
+        .zip(truth)
+        .map(|(p, q)| norm(sub(*p, *q)))
+        .sum::<f64>()
+        / truth.len().max(1) as f64
+}
+
+fn mean(xs: &[f64]) -> f64 {
+    xs.iter().sum::<f64>() / xs.len().max(1) as f64
+}
+
+/// The people fitted (ground-truth meshes in the model's topology): with `--data`, its
+/// held-out body rows evenly spread (as `panoman eval` and `examples/scan_bench` pick them);
+/// without, the first frame of the clips of seeds `seed + 1 …` (the eval clip's sampler).
+fn people(model: &Model, a: &BenchArgs) -> Result<Vec<Vec<V3>>> {
+    let n = a.people.max(1);
+    if let Some(data) = &a.data {
+        let ds = Dataset::open(data)?;
+        if ds.topology_hash != model.inner().topology_hash {
+            return Err(anyhow!(
+                "{}: the dataset's topology is not the model's",
+                data.display()
+            ));
+        }
+        let held: std::collections::BTreeSet<u32> = ds.held_out.iter().copied().collect();
+        let rows: Vec<usize> = (0..ds.n_rows)
+            .filter(|&r| ds.kind[r] == 1 && held.contains(&ds.identity[r]))
+            .collect();
+        if rows.is_empty() {
+            return Err(anyhow!("{}: no held-out body rows", data.display()));
+        }
+        let n = n.min(rows.len());
+        (0..n)
+            .map(|i| {
+                let v = ds.vertices(rows[i * rows.len() / n])?;
+                Ok(v.iter().map(|c| c.map(f64::from)).collect())
+            })
+            .collect()
+    } else {
+        let rig = rig_of(model)?;
+        (0..n as u64)
+            .map(|i| {
+                let clip = Clip::generate(&ClipConfig {
+                    seed: a.seed + 1 + i,
+                    n_frames: 2,
+                    n_keyframes: 2,
+                })?;
+                let (_, mut m) = clip.meshes(&rig.generator, &rig.map, rig.topology)?;
+                Ok(m.swap_remove(0))
+            })
+            .collect()
+    }
+}
+
+fn rig_of(model: &Model) -> Result<panoman_fit::Rig> {
+    Ok(panoman_fit::Rig::for_model(model.inner(), || {
+        Ok(panoman_human::assets::ensure_default()?)
+    })?)
+}
+
+/// xorshift64 uniform in [0, 1) and Box–Muller normals (the stream of `examples/scan_bench`).
+struct XorShift(u64);
+
+impl XorShift {
+    fn u(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    fn gauss(&mut self) -> f64 {
+        let (a, b) = (self.u().max(1e-300), self.u());
+        (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+    }
+}
+
+/// The scan case of `examples/scan_bench`: `n` area-uniform surface points of `truth` with
+/// `sigma` Gaussian noise, the 30 % with the largest y (the back) dropped.
+fn scan(truth: &[V3], faces: &[[u32; 3]], n: usize, sigma: f64, rng: &mut XorShift) -> Vec<V3> {
+    let areas: Vec<f64> = faces
+        .iter()
+        .map(|f| {
+            let [p, q, w] = f.map(|v| truth[v as usize]);
+            0.5 * norm(cross(sub(q, p), sub(w, p)))
+        })
+        .collect();
+    let total: f64 = areas.iter().sum();
+    let mut cdf = Vec::with_capacity(areas.len());
+    let mut acc = 0.0;
+    for a in &areas {
+        acc += a / total;
+        cdf.push(acc);
+    }
+    let mut pts = Vec::with_capacity(n);
+    for _ in 0..n {
+        let x = rng.u();
+        let fi = cdf.partition_point(|&c| c < x).min(faces.len() - 1);
+        let (mut b1, mut b2) = (rng.u(), rng.u());
+        if b1 + b2 > 1.0 {
+            b1 = 1.0 - b1;
+            b2 = 1.0 - b2;
+        }
+        let [p, q, w] = faces[fi].map(|v| truth[v as usize]);
+        let e = [rng.gauss(), rng.gauss(), rng.gauss()];
+        pts.push([0, 1, 2].map(|k| p[k] + b1 * (q[k] - p[k]) + b2 * (w[k] - p[k]) + sigma * e[k]));
+    }
+    let mut ys: Vec<f64> = pts.iter().map(|p| p[1]).collect();
+    ys.sort_by(f64::total_cmp);
+    let cut = ys[(0.7 * ys.len() as f64) as usize];
+    pts.into_iter().filter(|p| p[1] <= cut).collect()
+}
+
+/// Writes points as an ASCII PLY point cloud (readable by `panoman fit --points`).
+fn write_points(path: &Path, pts: &[V3]) -> Result<()> {
+    use std::fmt::Write as _;
+    let mut s = String::with_capacity(40 * pts.len() + 128);
+    let _ = write!(
+        s,
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\nend_header\n",
+        pts.len()
+    );
+    for p in pts {
+        let _ = writeln!(s, "{:.6} {:.6} {:.6}", p[0], p[1], p[2]);
+    }
+    crate::util::write_atomic(path, s)
+}
+
+fn run_fits(
+    rep: &Reporter,
+    a: &BenchArgs,
+    path: &Path,
+    model: &Model,
+    people: &[Vec<V3>],
+    dir: &Path,
+    runs: usize,
+) -> Result<()> {
+    let targets: Vec<Targets> = people
+        .iter()
+        .map(|t| Ok(Targets::from_keypoints(&model.keypoints(t)?)))
+        .collect::<Result<_>>()?;
+    let source = if a.data.is_some() {
+        "held-out rows"
+    } else {
+        "clip-sampler people"
+    };
+    if rep.wants("encode") {
+        let mut k = 0;
+        let mut errs = Vec::new();
+        let t: Vec<f64> = (0..runs)
+            .map(|_| {
+                let x = &people[k % people.len()];
+                let t = Instant::now();
+                let p = model.encode(x, None, Correction::Apply).expect("encode");
+                let ms = 1e3 * t.elapsed().as_secs_f64();
+                if k < people.len().min(3) {
+                    let back = model.pose(&p, Correction::Apply).expect("pose");
+                    errs.push(mean_error_mm(&back, x));
+                }
+                k += 1;
+                ms
+            })
+            .collect();
+        let e = mean(&errs);
+        rep.report_with(
+            "encode",
+            &t,
+            &format!(
+                "(Model::encode, Gauss–Newton, {source}; pose(encode) error {e:.2} mm over {})",
+                errs.len()
+            ),
+            obj(json!({"error_mm": e, "error_people": errs.len()})),
+        );
+    }
+    let mut fitter = if rep.wants_prefix(&["fit_cold", "track_warm", "fit_scan"]) {
+        Some(Fitter::new(model)?)
+    } else {
+        None
+    };
+    if rep.wants("fit_cold")
+        && let Some(f) = fitter.as_mut()
+    {
+        // One untimed fit first (allocations, pools).
+        f.fit(&targets[0], &FitRequest::default())?;
+        let (mut t, mut errs, mut solve) = (Vec::new(), Vec::new(), Vec::new());
+        for (x, tg) in people.iter().zip(&targets) {
+            let t0 = Instant::now();
+            let out = f.fit(tg, &FitRequest::default())?;
+            t.push(1e3 * t0.elapsed().as_secs_f64());
+            solve.push(1e3 * out.report.total_seconds);
+            errs.push(mean_error_mm(&out.vertices, x));
+        }
+        let e = mean(&errs);
+        let (sm, _, _) = median_min_max(&solve);
+        rep.report_with(
+            "fit_cold",
+            &t,
+            &format!(
+                "(Fitter::fit, exact keypoints, {} {source}; mean vertex error {e:.2} mm; IK + shell median {sm:.0} ms)",
+                people.len()
+            ),
+            obj(json!({"error_mm": e, "errors_mm": errs, "people": people.len(), "solve_median_ms": sm})),
+        );
+    }
+    if rep.wants("track_warm")
+        && let Some(f) = fitter.take()
+    {
+        let rig = rig_of(model)?;
+        let clip = Clip::generate(&ClipConfig {
+            seed: a.seed,
+            n_frames: a.clip_frames.max(2),
+            n_keyframes: 5.min(a.clip_frames.max(2)),
+        })?;
+        let (_, truths) = clip.meshes(&rig.generator, &rig.map, rig.topology)?;
+        let frames_dir = dir.join("clip");
+        std::fs::create_dir_all(&frames_dir)?;
+        let mut tracker = Tracker::with_fitter(f, FitRequest::default(), IkStart::Warm);
+        let (mut t, mut errs) = (Vec::new(), Vec::new());
+        let mut first_ms = f64::NAN;
+        for (i, x) in truths.iter().enumerate() {
+            let tg = Targets::from_keypoints(&model.keypoints(x)?);
+            tg.keypoints
+                .write(&frames_dir.join(format!("{i:05}.json")))?;
+            let t0 = Instant::now();
+            let out = tracker.track(&tg)?;
+            let ms = 1e3 * t0.elapsed().as_secs_f64();
+            if i == 0 {
+                first_ms = ms;
+            } else {
+                t.push(ms);
+            }
+            errs.push(mean_error_mm(&out.vertices, x));
+        }
+        let e = mean(&errs);
+        rep.report_with(
+            "track_warm",
+            &t,
+            &format!(
+                "(Tracker::track per frame after the first, {}-frame eval clip of seed {}; mean error {e:.2} mm; first frame {first_ms:.0} ms)",
+                truths.len(),
+                a.seed
+            ),
+            obj(json!({"error_mm": e, "frames": truths.len(), "first_frame_ms": first_ms, "seed": a.seed})),
+        );
+        fitter = Some(Fitter::new(model)?);
+    }
+    if rep.wants("fit_process") {
+        let exe = std::env::current_exe()?;
+        let (mut t, mut errs, mut setup) = (Vec::new(), Vec::new(), Vec::new());
+        for (i, (x, tg)) in people.iter().zip(&targets).enumerate() {
+            let kp = dir.join(format!("person{i:02}.json"));
+            tg.keypoints.write(&kp)?;
+            let out = dir.join(format!("fit{i:02}"));
+            let t0 = Instant::now();
+            let st = std::process::Command::new(&exe)
+                .arg("fit")
+                .arg("--model")
+                .arg(path)
+                .arg("--keypoints")
+                .arg(&kp)
+                .arg("--out")
+                .arg(&out)
+                .stdout(std::process::Stdio::null())
+                .status()?;
+            t.push(1e3 * t0.elapsed().as_secs_f64());
+            if !(st.success() || st.code() == Some(i32::from(crate::util::EXIT_NOT_CONVERGED))) {
+                return Err(anyhow!("panoman fit on {} failed: {st}", kp.display()));
+            }
+            let mesh = panoman_mesh::io::read_mesh(&out.join("mesh.obj"))?;
+            errs.push(mean_error_mm(&mesh.positions, x));
+            let r: Value =
+                serde_json::from_str(&std::fs::read_to_string(out.join("report.json"))?)?;
+            setup.push(1e3 * r["setup_seconds"].as_f64().unwrap_or(f64::NAN));
+        }
+        let e = mean(&errs);
+        let (sm, _, _) = median_min_max(&setup);
+        rep.report_with(
+            "fit_process",
+            &t,
+            &format!(
+                "(whole `panoman fit` process, {} {source}; mean vertex error {e:.2} mm; setup median {sm:.0} ms)",
+                people.len()
+            ),
+            obj(json!({"error_mm": e, "people": people.len(), "setup_median_ms": sm})),
+        );
+    }
+    if rep.wants("fit_scan")
+        && let Some(f) = fitter.as_mut()
+    {
+        let mut rng = XorShift(12345);
+        let (mut t, mut errs, mut kp_errs, mut npts) = (Vec::new(), Vec::new(), Vec::new(), 0);
+        let mut cases = Vec::new();
+        for (i, (x, tg)) in people.iter().zip(&targets).enumerate() {
+            let pts = scan(x, model.faces(), 5000, 0.002, &mut rng);
+            let x_kp_len = model.keypoint_names().len();
+            // scan_bench draws (unused, zero-σ) keypoint noise here: keep its stream.
+            for _ in 0..3 * x_kp_len {
+                rng.gauss();
+            }
+            if a.keep.is_some() {
+                tg.keypoints
+                    .write(&dir.join(format!("person{i:02}.json")))?;
+                write_points(&dir.join(format!("scan{i:02}.ply")), &pts)?;
+            }
+            npts = pts.len();
+            let with = Targets {
+                points: Some(PointCloud {
+                    positions: pts,
+                    normals: None,
+                }),
+                ..tg.clone()
+            };
+            let t0 = Instant::now();
+            let out = f.fit(&with, &FitRequest::default())?;
+            let ms = 1e3 * t0.elapsed().as_secs_f64();
+            t.push(ms);
+            let e = mean_error_mm(&out.vertices, x);
+            errs.push(e);
+            let kp = f.fit(tg, &FitRequest::default())?;
+            let ke = mean_error_mm(&kp.vertices, x);
+            kp_errs.push(ke);
+            let ik_stages: Vec<Value> = out
+                .report
+                .ik
+                .stages
+                .iter()
+                .map(|s| json!([s.name, 1e3 * s.seconds, s.iterations]))
+                .collect();
+            let shell_stages: Vec<Value> = out
+                .report
+                .stages
+                .iter()
+                .map(|s| json!([s.name, 1e3 * s.seconds]))
+                .collect();
+            cases.push(json!({"error_mm": e, "keypoints_only_mm": ke, "ms": ms,
+                "ik_ms": 1e3 * out.report.ik.seconds, "ik_iterations": out.report.ik.iterations,
+                "ik_stages": ik_stages, "shell_ms": 1e3 * out.report.fit_seconds,
+                "shell_stages": shell_stages}));
+        }
+        let (e, ke) = (mean(&errs), mean(&kp_errs));
+        rep.report_with(
+            "fit_scan",
+            &t,
+            &format!(
+                "(Fitter::fit, keypoints + {npts} of 5,000 scan points (2 mm noise, back 30 % cut), {} {source}; error {e:.2} mm, keypoints alone {ke:.2} mm)",
+                people.len()
+            ),
+            obj(json!({"error_mm": e, "keypoints_only_mm": ke, "people": people.len(), "cases": cases})),
+        );
+    }
+    Ok(())
+}
