@@ -327,7 +327,9 @@ impl Model {
 
     /// Encodes a registered mesh (the model's topology, metres) into parameters: α is the
     /// shape-PCA projection of `rest` when given (the person's rest shape), else of the mesh
-    /// itself; β is the least-squares fit of the mesh's RL/RA with the correction applied
+    /// itself — which is right only near the rest pose: the pose then leaks into α (measured
+    /// on the default model, a generated person with one arm raised 50° and the elbow bent
+    /// 40°: `pose(encode(x))` is 141 mm off without `rest`, 0.97 mm with it); β is the least-squares fit of the mesh's RL/RA with the correction applied
     /// (unless `correction` is [`Correction::Skip`]), then, with [`Encoder::VertexError`],
     /// refined to minimise `Σ_v |B_P(α, β)_v − T x_v|²` over β (T rigid). The rigid placement
     /// is kept: `pose(encode(x))` lands where `x` is (`rotation`/`translation` are the

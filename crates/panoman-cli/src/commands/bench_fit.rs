@@ -103,13 +103,13 @@ pub(crate) fn run(rep: &Reporter, a: &BenchArgs, path: &Path, runs: usize) -> Re
     if !rep.wants_prefix(&["encode", "fit_", "track_"]) {
         return Ok(());
     }
-    let people = people(&model, a)?;
+    let (people, rests): (Vec<Vec<V3>>, Vec<Vec<V3>>) = people(&model, a)?.into_iter().unzip();
     let dir = match &a.keep {
         Some(d) => d.clone(),
         None => std::env::temp_dir().join(format!("panoman-bench-fit-{}", std::process::id())),
     };
     std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-    let result = run_fits(rep, a, path, &model, &people, &dir, runs);
+    let result = run_fits(rep, a, path, &model, (&people, &rests), &dir, runs);
     if a.keep.is_none() {
         let _ = std::fs::remove_dir_all(&dir);
     }
@@ -137,7 +137,8 @@ fn mean(xs: &[f64]) -> f64 {
 /// The people fitted (ground-truth meshes in the model's topology): with `--data`, its
 /// held-out body rows evenly spread (as `panoman eval` and `examples/scan_bench` pick them);
 /// without, the first frame of the clips of seeds `seed + 1 …` (the eval clip's sampler).
-fn people(model: &Model, a: &BenchArgs) -> Result<Vec<Vec<V3>>> {
+/// Each with its rest shape (the identity's rest row, or the clip identity's rest mesh).
+fn people(model: &Model, a: &BenchArgs) -> Result<Vec<(Vec<V3>, Vec<V3>)>> {
     let n = a.people.max(1);
     if let Some(data) = &a.data {
         let ds = Dataset::open(data)?;
@@ -155,10 +156,20 @@ fn people(model: &Model, a: &BenchArgs) -> Result<Vec<Vec<V3>>> {
             return Err(anyhow!("{}: no held-out body rows", data.display()));
         }
         let n = n.min(rows.len());
+        let f64s = |v: Vec<[f32; 3]>| -> Vec<V3> { v.iter().map(|c| c.map(f64::from)).collect() };
         (0..n)
             .map(|i| {
-                let v = ds.vertices(rows[i * rows.len() / n])?;
-                Ok(v.iter().map(|c| c.map(f64::from)).collect())
+                let r = rows[i * rows.len() / n];
+                let rest_row = (0..ds.n_rows)
+                    .find(|&q| ds.kind[q] == 0 && ds.identity[q] == ds.identity[r])
+                    .ok_or_else(|| {
+                        anyhow!(
+                            "{}: identity {} has no rest row",
+                            data.display(),
+                            ds.identity[r]
+                        )
+                    })?;
+                Ok((f64s(ds.vertices(r)?), f64s(ds.vertices(rest_row)?)))
             })
             .collect()
     } else {
@@ -170,8 +181,8 @@ fn people(model: &Model, a: &BenchArgs) -> Result<Vec<Vec<V3>>> {
                     n_frames: 2,
                     n_keyframes: 2,
                 })?;
-                let (_, mut m) = clip.meshes(&rig.generator, &rig.map, rig.topology)?;
-                Ok(m.swap_remove(0))
+                let (rest, mut m) = clip.meshes(&rig.generator, &rig.map, rig.topology)?;
+                Ok((m.swap_remove(0), rest))
             })
             .collect()
     }
@@ -256,7 +267,7 @@ fn run_fits(
     a: &BenchArgs,
     path: &Path,
     model: &Model,
-    people: &[Vec<V3>],
+    (people, rests): (&[Vec<V3>], &[Vec<V3>]),
     dir: &Path,
     runs: usize,
 ) -> Result<()> {
@@ -274,9 +285,11 @@ fn run_fits(
         let mut errs = Vec::new();
         let t: Vec<f64> = (0..runs)
             .map(|_| {
-                let x = &people[k % people.len()];
+                let (x, rest) = (&people[k % people.len()], &rests[k % people.len()]);
                 let t = Instant::now();
-                let p = model.encode(x, None, Correction::Apply).expect("encode");
+                let p = model
+                    .encode(x, Some(rest), Correction::Apply)
+                    .expect("encode");
                 let ms = 1e3 * t.elapsed().as_secs_f64();
                 if k < people.len().min(3) {
                     let back = model.pose(&p, Correction::Apply).expect("pose");
@@ -291,7 +304,7 @@ fn run_fits(
             "encode",
             &t,
             &format!(
-                "(Model::encode, Gauss–Newton, {source}; pose(encode) error {e:.2} mm over {})",
+                "(Model::encode with the person's rest shape, Gauss–Newton, {source}; pose(encode) error {e:.2} mm over {})",
                 errs.len()
             ),
             obj(json!({"error_mm": e, "error_people": errs.len()})),
