@@ -6,8 +6,10 @@ serial loop (identical results required).
         [--runs 50] [--bin target/release/panoman] [--frames 64] [--skip-ray] \
         [--anny-python VENV/bin/python]
 
-The Rust figure comes from `panoman bench --model M --only pose --json` (the same library call,
-`Model::pose` of the full template at B = 1). Fits use the small example model
+The Rust figure comes from `panoman bench --model M --only pose --pose-params P --json` with
+the same parameters written to P (the same library call, `Model::pose` of the full template at
+B = 1; `g`'s iterations depend on the parameters, so both must pose the same ones). Python and
+Rust runs alternate, `--rounds` times, and the medians of all runs are compared. Fits use the small example model
 (`panoman.training.small_model()`), as the issue asks ("small-preset frames"). With
 `--anny-python` (a Python with `anny==0.6.2` and torch installed) anny's batched forward
 (`anny.Anny()` defaults, float32 and float64, no grad, all CPU threads) is timed at the same
@@ -19,6 +21,7 @@ import json
 import os
 import statistics
 import subprocess
+import tempfile
 import time
 
 import numpy as np
@@ -41,9 +44,10 @@ def emit(**kw):
     print(json.dumps(kw), flush=True)
 
 
-def rust_pose_ms(binary, model, runs):
+def rust_pose_ms(binary, model, runs, params_path):
     out = subprocess.run(
-        [binary, "bench", "--model", model, "--only", "pose", "--runs", str(runs), "--json"],
+        [binary, "bench", "--model", model, "--only", "pose", "--runs", str(runs), "--json",
+         "--pose-params", params_path],
         check=True,
         capture_output=True,
         text=True,
@@ -96,6 +100,8 @@ def main():
     ap.add_argument("--bin", default="target/release/panoman")
     ap.add_argument("--runs", type=int, default=50)
     ap.add_argument("--batch", type=int, default=64)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--only-pose", action="store_true")
     ap.add_argument("--frames", type=int, default=64)
     ap.add_argument("--skip-ray", action="store_true")
     ap.add_argument("--anny-python", help="a Python with anny==0.6.2 + torch, for the peer figure")
@@ -105,11 +111,20 @@ def main():
     model = panoman.Model.load(a.model)
     rng = np.random.default_rng(0)
     alpha, betas = random_params(model, rng)
-    py_med, py_min, py_max = median_ms(lambda: model.pose(alpha, betas), a.runs)
-    rust = rust_pose_ms(a.bin, a.model, a.runs)
-    emit(name="pose_python", median_ms=py_med, min_ms=py_min, max_ms=py_max, runs=a.runs,
-         rust_median_ms=rust, overhead=py_med / rust - 1.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "p.json")
+        p = panoman.Params(alpha=alpha, beta=betas)
+        p.write(path)
+        py, rust = [], []
+        for _ in range(a.rounds):
+            py.append(median_ms(lambda: model.pose(p), a.runs)[0])
+            rust.append(rust_pose_ms(a.bin, a.model, a.runs, path))
+    py_med, rust_med = statistics.median(py), statistics.median(rust)
+    emit(name="pose_python", median_ms=py_med, rust_median_ms=rust_med, runs=a.runs,
+         rounds=a.rounds, python_rounds_ms=py, rust_rounds_ms=rust, overhead=py_med / rust_med - 1.0)
 
+    if a.only_pose:
+        return
     alphas, bb = random_params(model, rng, a.batch)
     runs = max(3, a.runs // 10)
     med, lo, hi = median_ms(lambda: model.pose_batch(alphas, bb), runs, warmup=1)

@@ -57,6 +57,10 @@ pub struct BenchArgs {
     /// e.g. to run another build's `panoman fit` / `panoman track` on them.
     #[arg(long)]
     pub keep: Option<PathBuf>,
+    /// Parameters for the `pose` entry (PanoMan params JSON) instead of the three seeded
+    /// random sets, e.g. to time the same call from another binding.
+    #[arg(long)]
+    pub pose_params: Option<PathBuf>,
 }
 
 pub(crate) struct Reporter {

@@ -82,7 +82,10 @@ pub(crate) fn run(rep: &Reporter, a: &BenchArgs, path: &Path, runs: usize) -> Re
             model.n_vertices()
         );
     }
-    let params = random_params(&model, a.seed ^ 0x5eed);
+    let params = match &a.pose_params {
+        Some(p) => vec![Params::read(p, model.inner())?],
+        None => random_params(&model, a.seed ^ 0x5eed),
+    };
     if rep.wants("pose") {
         let mut k = 0;
         let t = time_runs(1, runs, || {
