@@ -22,14 +22,14 @@
 //! shell fit's ICP passes after the skeletal ICP); `check=1` prints full-precision
 //! keypoint-only IK results (for bitwise comparisons of the solver).
 use panoman_fit::fit::FitOptions;
-use panoman_fit::icp::{VertexFaces, correspondences_on};
+use panoman_fit::icp::{VertexFaces, correspondences_on, simulated_scan};
 use panoman_fit::ik::{IkConfig, IkTargets, PointTarget};
 use panoman_fit::{
     Constraints, Fitter, IkIcpOptions, Rig, fit_frame, ik_config_for_noise, ik_fit, ik_icp, init_of,
 };
 use panoman_human::dataset::Dataset;
 use panoman_human::keypoints::KeypointsFile;
-use panoman_mesh::geom::{V3, cross, norm, sub};
+use panoman_mesh::geom::{V3, norm, sub};
 use panoman_model::model::PanoManModel;
 use std::time::Instant;
 
@@ -42,57 +42,21 @@ fn arg<T: std::str::FromStr>(a: &[String], k: &str, d: T) -> T {
         .unwrap_or(d)
 }
 
-/// xorshift64 uniform in [0, 1).
+/// Keypoint noise draws, continuing the stream `simulated_scan` advances (xorshift64 on the
+/// same state, Box–Muller normals).
 struct Rng(u64);
 
 impl Rng {
-    fn u(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-
     fn gauss(&mut self) -> f64 {
-        let (a, b) = (self.u().max(1e-300), self.u());
+        let mut u = || {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 7;
+            self.0 ^= self.0 << 17;
+            (self.0 >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (a, b) = (u().max(1e-300), u());
         (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
     }
-}
-
-/// The scan of `truth`: `n` area-uniform points with `sigma` noise, the 30 % with the largest
-/// y dropped.
-fn scan(truth: &[V3], faces: &[[u32; 3]], n: usize, sigma: f64, rng: &mut Rng) -> Vec<V3> {
-    let areas: Vec<f64> = faces
-        .iter()
-        .map(|f| {
-            let [p, q, w] = f.map(|v| truth[v as usize]);
-            0.5 * norm(cross(sub(q, p), sub(w, p)))
-        })
-        .collect();
-    let total: f64 = areas.iter().sum();
-    let mut cdf = Vec::with_capacity(areas.len());
-    let mut acc = 0.0;
-    for a in &areas {
-        acc += a / total;
-        cdf.push(acc);
-    }
-    let mut pts = Vec::with_capacity(n);
-    for _ in 0..n {
-        let x = rng.u();
-        let fi = cdf.partition_point(|&c| c < x).min(faces.len() - 1);
-        let (mut b1, mut b2) = (rng.u(), rng.u());
-        if b1 + b2 > 1.0 {
-            b1 = 1.0 - b1;
-            b2 = 1.0 - b2;
-        }
-        let [p, q, w] = faces[fi].map(|v| truth[v as usize]);
-        let e = [rng.gauss(), rng.gauss(), rng.gauss()];
-        pts.push([0, 1, 2].map(|k| p[k] + b1 * (q[k] - p[k]) + b2 * (w[k] - p[k]) + sigma * e[k]));
-    }
-    let mut ys: Vec<f64> = pts.iter().map(|p| p[1]).collect();
-    ys.sort_by(f64::total_cmp);
-    let cut = ys[(0.7 * ys.len() as f64) as usize];
-    pts.into_iter().filter(|p| p[1] <= cut).collect()
 }
 
 fn main() {
@@ -171,7 +135,7 @@ fn main() {
     for i in 0..n_rows {
         let r = rows[i * rows.len() / n_rows];
         let truth = to_v3(ds.vertices(r).unwrap());
-        let pts = scan(&truth, &model.faces, 5000, 0.002, &mut rng);
+        let pts = simulated_scan(&truth, &model.faces, 5000, 0.002, &mut rng.0);
         let mut kpts = model.keypoints.evaluate(&truth);
         for p in kpts.iter_mut() {
             for c in p.iter_mut() {

@@ -137,3 +137,61 @@ pub fn correspondences_on(
     st.mean_distance_mm = 1e3 * dsum / st.matched.max(1) as f64;
     (out, st)
 }
+
+/// A simulated depth scan of a mesh (the scan case of `examples/scan_bench`, `panoman bench`'s
+/// `fit_scan`): `n` points drawn area-uniformly on the triangles of `truth` (`(V, 3)` metres)
+/// with isotropic Gaussian noise of `sigma` metres, then the 30 % with the largest y (the back)
+/// dropped. Deterministic in `seed` (xorshift64 uniforms, Box–Muller normals); a state seeded
+/// once and passed to several scans gives each its own draws.
+pub fn simulated_scan(
+    truth: &[V3],
+    faces: &[[u32; 3]],
+    n: usize,
+    sigma: f64,
+    state: &mut u64,
+) -> Vec<V3> {
+    use panoman_mesh::geom::cross;
+    let mut u = || {
+        *state ^= *state << 13;
+        *state ^= *state >> 7;
+        *state ^= *state << 17;
+        (*state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let areas: Vec<f64> = faces
+        .iter()
+        .map(|f| {
+            let [p, q, w] = f.map(|v| truth[v as usize]);
+            0.5 * norm(cross(sub(q, p), sub(w, p)))
+        })
+        .collect();
+    let total: f64 = areas.iter().sum();
+    let mut cdf = Vec::with_capacity(areas.len());
+    let mut acc = 0.0;
+    for a in &areas {
+        acc += a / total;
+        cdf.push(acc);
+    }
+    let mut pts = Vec::with_capacity(n);
+    for _ in 0..n {
+        let x = u();
+        let fi = cdf.partition_point(|&c| c < x).min(faces.len() - 1);
+        let (mut b1, mut b2) = (u(), u());
+        if b1 + b2 > 1.0 {
+            b1 = 1.0 - b1;
+            b2 = 1.0 - b2;
+        }
+        let [p, q, w] = faces[fi].map(|v| truth[v as usize]);
+        let mut gauss = || {
+            let (a, b) = (u().max(1e-300), u());
+            (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+        };
+        let e = [gauss(), gauss(), gauss()];
+        pts.push([0, 1, 2].map(|k| p[k] + b1 * (q[k] - p[k]) + b2 * (w[k] - p[k]) + sigma * e[k]));
+    }
+    let mut ys: Vec<f64> = pts.iter().map(|p| p[1]).collect();
+    ys.sort_by(f64::total_cmp);
+    let Some(&cut) = ys.get((0.7 * ys.len() as f64) as usize) else {
+        return pts;
+    };
+    pts.into_iter().filter(|p| p[1] <= cut).collect()
+}

@@ -197,59 +197,6 @@ fn rig_of(model: &Model) -> Result<panoman_fit::Rig> {
     })?)
 }
 
-/// xorshift64 uniform in [0, 1) and Box–Muller normals (the stream of `examples/scan_bench`).
-struct XorShift(u64);
-
-impl XorShift {
-    fn u(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    fn gauss(&mut self) -> f64 {
-        let (a, b) = (self.u().max(1e-300), self.u());
-        (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
-    }
-}
-
-/// The scan case of `examples/scan_bench`: `n` area-uniform surface points of `truth` with
-/// `sigma` Gaussian noise, the 30 % with the largest y (the back) dropped.
-fn scan(truth: &[V3], faces: &[[u32; 3]], n: usize, sigma: f64, rng: &mut XorShift) -> Vec<V3> {
-    let areas: Vec<f64> = faces
-        .iter()
-        .map(|f| {
-            let [p, q, w] = f.map(|v| truth[v as usize]);
-            0.5 * norm(cross(sub(q, p), sub(w, p)))
-        })
-        .collect();
-    let total: f64 = areas.iter().sum();
-    let mut cdf = Vec::with_capacity(areas.len());
-    let mut acc = 0.0;
-    for a in &areas {
-        acc += a / total;
-        cdf.push(acc);
-    }
-    let mut pts = Vec::with_capacity(n);
-    for _ in 0..n {
-        let x = rng.u();
-        let fi = cdf.partition_point(|&c| c < x).min(faces.len() - 1);
-        let (mut b1, mut b2) = (rng.u(), rng.u());
-        if b1 + b2 > 1.0 {
-            b1 = 1.0 - b1;
-            b2 = 1.0 - b2;
-        }
-        let [p, q, w] = faces[fi].map(|v| truth[v as usize]);
-        let e = [rng.gauss(), rng.gauss(), rng.gauss()];
-        pts.push([0, 1, 2].map(|k| p[k] + b1 * (q[k] - p[k]) + b2 * (w[k] - p[k]) + sigma * e[k]));
-    }
-    let mut ys: Vec<f64> = pts.iter().map(|p| p[1]).collect();
-    ys.sort_by(f64::total_cmp);
-    let cut = ys[(0.7 * ys.len() as f64) as usize];
-    pts.into_iter().filter(|p| p[1] <= cut).collect()
-}
-
 /// Writes points as an ASCII PLY point cloud (readable by `panoman fit --points`).
 fn write_points(path: &Path, pts: &[V3]) -> Result<()> {
     use std::fmt::Write as _;
@@ -428,11 +375,11 @@ fn run_fits(
     if rep.wants("fit_scan")
         && let Some(f) = fitter.as_mut()
     {
-        let mut rng = XorShift(12345);
+        let mut rng = 12345u64;
         let (mut t, mut errs, mut kp_errs, mut npts) = (Vec::new(), Vec::new(), Vec::new(), 0);
         let mut cases = Vec::new();
         for (i, (x, tg)) in people.iter().zip(&targets).enumerate() {
-            let pts = scan(x, model.faces(), 5000, 0.002, &mut rng);
+            let pts = panoman_fit::icp::simulated_scan(x, model.faces(), 5000, 0.002, &mut rng);
             let x_kp_len = model.keypoint_names().len();
             // scan_bench draws (unused, zero-σ) keypoint noise here: keep its stream.
             for _ in 0..3 * x_kp_len {
