@@ -195,3 +195,30 @@ pub fn simulated_scan(
     };
     pts.into_iter().filter(|p| p[1] <= cut).collect()
 }
+
+#[cfg(test)]
+mod scan_tests {
+    use super::simulated_scan;
+
+    #[test]
+    fn a_simulated_scan_keeps_the_front_70_percent_on_the_surface_and_repeats_per_seed() {
+        // A unit square in the z = 0 plane (two triangles), no noise.
+        let v = vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ];
+        let f = vec![[0, 1, 2], [0, 2, 3]];
+        let (mut s1, mut s2) = (7u64, 7u64);
+        let a = simulated_scan(&v, &f, 1000, 0.0, &mut s1);
+        let b = simulated_scan(&v, &f, 1000, 0.0, &mut s2);
+        assert_eq!(a, b);
+        assert!((695..=705).contains(&a.len()), "{}", a.len());
+        let cut = a.iter().map(|p| p[1]).fold(0.0f64, f64::max);
+        assert!((cut - 0.7).abs() < 0.05, "back cut at y = {cut}");
+        assert!(a.iter().all(|p| p[2] == 0.0 && (0.0..=1.0).contains(&p[0])));
+        // The state advanced: the next scan differs.
+        assert_ne!(simulated_scan(&v, &f, 1000, 0.0, &mut s1), a);
+    }
+}

@@ -9,7 +9,7 @@ use panoman::{
 };
 use panoman_human::clip::{Clip, ClipConfig};
 use panoman_human::dataset::Dataset;
-use panoman_mesh::geom::{V3, cross, norm, sub};
+use panoman_mesh::geom::{V3, norm, sub};
 use serde_json::{Map, Value, json};
 use std::path::Path;
 use std::time::Instant;
@@ -381,9 +381,12 @@ fn run_fits(
         for (i, (x, tg)) in people.iter().zip(&targets).enumerate() {
             let pts = panoman_fit::icp::simulated_scan(x, model.faces(), 5000, 0.002, &mut rng);
             let x_kp_len = model.keypoint_names().len();
-            // scan_bench draws (unused, zero-σ) keypoint noise here: keep its stream.
-            for _ in 0..3 * x_kp_len {
-                rng.gauss();
+            // scan_bench draws (unused, zero-σ) keypoint noise here, two xorshift64 steps per
+            // normal: keep its stream.
+            for _ in 0..6 * x_kp_len {
+                rng ^= rng << 13;
+                rng ^= rng >> 7;
+                rng ^= rng << 17;
             }
             if a.keep.is_some() {
                 tg.keypoints
