@@ -19,6 +19,8 @@
 //!   `data/cmu53.json`, `data/plugin_gait43.json`); [`solve`]: MoSh-style calibration,
 //!   tracking (PanoMan or LBS) and held-out marker error; [`solve_run::solve_capture`] runs it
 //!   from files; [`glitch`]: capture glitches found from the markers alone.
+//! * [`track::track_retarget`]: retargeted motion tracked from the TC-127 keypoints of its
+//!   generated meshes (PanoMan and the LBS baseline), per-vertex error and time per frame.
 //!
 //! Every error is a [`MocapError`] whose message names the file and what is wrong; no
 //! reader panics on malformed input, and allocations are bounded by the input's size.
@@ -37,6 +39,7 @@ pub mod markers;
 pub mod retarget;
 pub mod solve;
 pub mod solve_run;
+pub mod track;
 pub mod vsk;
 
 pub use error::{MocapError, Result};

@@ -4,6 +4,8 @@ use panoman_human::regions::{Part, Regions};
 use panoman_mesh::geom::{V3, norm, sub};
 use serde::{Deserialize, Serialize};
 
+use crate::model::Model;
+
 /// Mean and max per-vertex error (mm) per part (body, face, hands) and over all vertices.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PartErrors {
@@ -25,8 +27,9 @@ pub struct PartErrors {
     pub hands_max: f64,
 }
 
-/// The vertex groups errors are reported on.
-pub(crate) struct Groups {
+/// The vertex groups errors are reported on (body, face, both hands).
+#[derive(Clone, Debug)]
+pub struct Groups {
     body: Vec<u32>,
     face: Vec<u32>,
     hands: Vec<u32>,
@@ -44,6 +47,33 @@ impl Groups {
                 h
             },
         }
+    }
+}
+
+impl Groups {
+    /// Body, face and both hands of a model's own vertex labelling ([`Model::regions`]; no
+    /// asset tree needed).
+    pub fn of_model(model: &Model) -> Groups {
+        let mut g = Groups {
+            body: Vec::new(),
+            face: Vec::new(),
+            hands: Vec::new(),
+        };
+        for (name, ids) in model.regions() {
+            match name {
+                "body" => g.body = ids,
+                "face" => g.face = ids,
+                _ => g.hands.extend(ids),
+            }
+        }
+        g.hands.sort_unstable();
+        g
+    }
+
+    /// Per-vertex errors (mm) of `x` against `truth` (both `(V, 3)` metres, the same
+    /// topology) by part, see [`part_errors`].
+    pub fn errors(&self, x: &[V3], truth: &[V3]) -> PartErrors {
+        part_errors(x, truth, self)
     }
 }
 

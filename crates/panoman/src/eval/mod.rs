@@ -38,7 +38,7 @@ mod timing;
 mod twist;
 
 pub use clip::ClipFrame;
-pub use metrics::{PartErrors, mean_of};
+pub use metrics::{Groups, PartErrors, mean_of};
 pub use summary::*;
 
 /// The sizes of an evaluation.

@@ -1,0 +1,289 @@
+//! Tracking of retargeted motion from the TC-127 keypoints of its own meshes (issue 13: "CMU
+//! `01_01` retargeted … tracked from TC-127 keypoints of the generated meshes").
+//!
+//! Per selected frame: the rig generator (embedded in the model) poses the frame's
+//! [`GeneratorParams`] — the ground truth, mapped onto the model's topology —, the model's
+//! 127 keypoints of that mesh ([`panoman::Model::keypoints`]) are the only targets, and two
+//! [`panoman::Tracker`]s fit them in frame order: PanoMan (skeletal IK warm-started from the
+//! previous frame, then the shell fit with temporal terms) and the LBS baseline (the IK
+//! alone, warm-started). Both are the trackers of `panoman track`; the per-vertex errors are
+//! those of `panoman eval`'s clip ([`panoman::eval::Groups`]: no alignment, world frame).
+//!
+//! Units: metres in the API (meshes, keypoints), millimetres and milliseconds in the report.
+
+use std::time::Instant;
+
+use panoman::eval::{Groups, MeshTriple, PartErrors};
+use panoman::{FitRequest, IkStart, Method, Model, Targets, Tracker};
+use panoman_human::params::GeneratorParams;
+use serde::Serialize;
+
+use crate::bvh::Bvh;
+use crate::error::{MocapError, Result};
+use crate::retarget::CmuRetarget;
+
+/// A frame selection `start:end:step` (`end` exclusive; `None` = to the last frame), as
+/// parsed by [`crate::solve_run::parse_frames`].
+pub type FrameRange = (usize, Option<usize>, usize);
+
+/// The frames of `range` in a sequence of `n_frames` frames, ascending.
+///
+/// # Errors
+/// [`MocapError::Invalid`] when the step is 0, `end ≤ start`, or no frame of the range lies
+/// below `n_frames` (an empty selection).
+pub fn select_frames(n_frames: usize, range: FrameRange) -> Result<Vec<usize>> {
+    let (start, end, step) = range;
+    let bad = |what: String| Err(MocapError::Invalid { what });
+    if step == 0 {
+        return bad("frame step must be ≥ 1".into());
+    }
+    if end.is_some_and(|e| e <= start) {
+        return bad(format!("empty frame range {start}:{}", end.unwrap_or(0)));
+    }
+    let stop = end.unwrap_or(n_frames).min(n_frames);
+    if start >= stop {
+        return bad(format!(
+            "frame range {start}:{}:{step} selects no frame of the {n_frames} frames",
+            end.map(|e| e.to_string()).unwrap_or_default()
+        ));
+    }
+    Ok((start..stop).step_by(step).collect())
+}
+
+/// One tracked frame.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct TrackFrame {
+    /// The frame's index in the source sequence (e.g. the BVH frame).
+    pub frame: usize,
+    /// PanoMan's per-vertex errors against the generated mesh (mm; all / body / face /
+    /// hands, mean and max).
+    pub panoman: PartErrors,
+    /// The LBS baseline's per-vertex errors (mm).
+    pub lbs: PartErrors,
+    /// PanoMan's wall time for the frame (`Tracker::track`: IK + shell fit), ms.
+    pub panoman_ms: f64,
+    /// The LBS baseline's wall time for the frame, ms.
+    pub lbs_ms: f64,
+    /// Whether PanoMan's fit passed its quality check.
+    pub panoman_converged: bool,
+    /// Whether the LBS fit passed its quality check.
+    pub lbs_converged: bool,
+}
+
+/// Statistics of one method over the tracked frames.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct MethodStats {
+    /// Mean over frames of the per-frame mean per-vertex error, mm.
+    pub mean_mm: f64,
+    /// Median over frames of the per-frame mean per-vertex error, mm.
+    pub median_mm: f64,
+    /// Largest per-frame mean per-vertex error, mm.
+    pub max_mm: f64,
+    /// The source frame index of `max_mm`.
+    pub worst_frame: usize,
+    /// Largest single-vertex error over all frames, mm.
+    pub max_vertex_mm: f64,
+    /// Means over frames of the per-part means (body, face, hands), mm.
+    pub body_mean_mm: f64,
+    /// See `body_mean_mm`.
+    pub face_mean_mm: f64,
+    /// See `body_mean_mm`.
+    pub hands_mean_mm: f64,
+    /// Mean wall time per frame, ms (every frame, the cold first one included).
+    pub ms_per_frame: f64,
+    /// Median wall time per frame, ms.
+    pub median_ms_per_frame: f64,
+    /// Mean wall time of the warm frames (all but the first), ms; the first frame's if there
+    /// is only one.
+    pub warm_ms_per_frame: f64,
+    /// Frames whose fit failed its quality check.
+    pub not_converged: usize,
+}
+
+/// What [`track_generated`] measures.
+#[derive(Clone, Debug, Serialize)]
+pub struct TrackReport {
+    /// Per tracked frame, in order.
+    pub frames: Vec<TrackFrame>,
+    /// PanoMan over the frames.
+    pub panoman: MethodStats,
+    /// The LBS baseline over the frames.
+    pub lbs: MethodStats,
+    /// Mean time to generate a ground-truth mesh and its keypoints, ms.
+    pub generate_ms_per_frame: f64,
+    /// Setup of both trackers (rig, solvers), s.
+    pub setup_seconds: f64,
+    /// The model's vertex count (the topology errors are measured on).
+    pub n_vertices: usize,
+    /// Ground truth and both fits of PanoMan's worst frame (`panoman.worst_frame`; metres,
+    /// the model's topology).
+    #[serde(skip)]
+    pub worst: Option<MeshTriple>,
+}
+
+/// Progress of [`track_generated`]: `(frames done, frames in all, the last frame's row)`.
+pub type TrackProgress<'a> = &'a mut dyn FnMut(usize, usize, &TrackFrame);
+
+fn median(v: &[f64]) -> f64 {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}
+
+fn stats(
+    rows: &[TrackFrame],
+    pick: impl Fn(&TrackFrame) -> (PartErrors, f64, bool),
+) -> MethodStats {
+    let n = rows.len().max(1) as f64;
+    let errs: Vec<f64> = rows.iter().map(|r| pick(r).0.all_mean).collect();
+    let ms: Vec<f64> = rows.iter().map(|r| pick(r).1).collect();
+    let (worst, max) =
+        errs.iter().enumerate().fold(
+            (0, f64::NEG_INFINITY),
+            |(k, m), (i, &e)| {
+                if e > m { (i, e) } else { (k, m) }
+            },
+        );
+    let part = |f: fn(&PartErrors) -> f64| rows.iter().map(|r| f(&pick(r).0)).sum::<f64>() / n;
+    let warm = if ms.len() > 1 { &ms[1..] } else { &ms[..] };
+    MethodStats {
+        mean_mm: errs.iter().sum::<f64>() / n,
+        median_mm: median(&errs),
+        max_mm: max,
+        worst_frame: rows.get(worst).map_or(0, |r| r.frame),
+        max_vertex_mm: rows.iter().map(|r| pick(r).0.all_max).fold(0.0, f64::max),
+        body_mean_mm: part(|p| p.body_mean),
+        face_mean_mm: part(|p| p.face_mean),
+        hands_mean_mm: part(|p| p.hands_mean),
+        ms_per_frame: ms.iter().sum::<f64>() / n,
+        median_ms_per_frame: median(&ms),
+        warm_ms_per_frame: warm.iter().sum::<f64>() / warm.len().max(1) as f64,
+        not_converged: rows.iter().filter(|r| !pick(r).2).count(),
+    }
+}
+
+fn inv(what: impl Into<String>) -> MocapError {
+    MocapError::Invalid { what: what.into() }
+}
+
+/// Tracks the meshes of `frames` — `(source frame index, generator parameters)` in order —
+/// from their TC-127 keypoints with PanoMan and the LBS baseline (see the module docs) and
+/// measures the per-vertex error of both against the generated meshes.
+///
+/// The meshes are generated by the rig embedded in `model` on the model's topology
+/// (`(V, 3)`, metres); an identity is built once per distinct shape. `progress` hears every
+/// finished frame.
+///
+/// # Errors
+/// [`MocapError::Invalid`] for no frames, a model without an embedded rig or on a topology
+/// the generator does not map to, parameters the generator rejects (naming the frame), and
+/// tracker failures (naming the frame and the method).
+pub fn track_generated(
+    model: &Model,
+    frames: &[(usize, GeneratorParams)],
+    progress: TrackProgress,
+) -> Result<TrackReport> {
+    if frames.is_empty() {
+        return Err(inv("no frames to track"));
+    }
+    let rig = model
+        .inner()
+        .rig
+        .clone()
+        .ok_or_else(|| inv("the model carries no rig (see `panoman embed-rig`)"))?;
+    let topology = model
+        .output_topology()
+        .map_err(|e| inv(format!("model: {e}")))?;
+    let names = rig.generator.bone_names();
+    let groups = Groups::of_model(model);
+    let t_setup = Instant::now();
+    let tracker = |method| {
+        let req = FitRequest {
+            method,
+            ..FitRequest::default()
+        };
+        Tracker::new(model, req, IkStart::Warm).map_err(|e| inv(format!("tracker: {e}")))
+    };
+    let (mut pm, mut lbs) = (tracker(Method::PanoMan)?, tracker(Method::Lbs)?);
+    let setup_seconds = t_setup.elapsed().as_secs_f64();
+    let mut identity: Option<(panoman_human::params::ShapeParams, _)> = None;
+    let mut rows: Vec<TrackFrame> = Vec::with_capacity(frames.len());
+    let mut worst: Option<MeshTriple> = None;
+    let mut gen_s = 0.0;
+    for (k, (f, p)) in frames.iter().enumerate() {
+        let at = |e: &dyn std::fmt::Display| inv(format!("frame {f}: {e}"));
+        let t = Instant::now();
+        p.shape.validate().map_err(|e| at(&e))?;
+        p.pose.validate(names).map_err(|e| at(&e))?;
+        if identity.as_ref().is_none_or(|(s, _)| *s != p.shape) {
+            let id = rig.generator.identity(&p.shape).map_err(|e| at(&e))?;
+            identity = Some((p.shape.clone(), id));
+        }
+        let id = &identity.as_ref().expect("identity built above").1;
+        let truth = rig.map.map(topology, &id.pose(&p.pose).vertices);
+        let targets = Targets::from_keypoints(&model.keypoints(&truth).map_err(|e| at(&e))?);
+        gen_s += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let a = pm
+            .track(&targets)
+            .map_err(|e| inv(format!("frame {f}: PanoMan: {e}")))?;
+        let panoman_ms = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let b = lbs
+            .track(&targets)
+            .map_err(|e| inv(format!("frame {f}: LBS: {e}")))?;
+        let lbs_ms = t.elapsed().as_secs_f64() * 1e3;
+        let row = TrackFrame {
+            frame: *f,
+            panoman: groups.errors(&a.vertices, &truth),
+            lbs: groups.errors(&b.vertices, &truth),
+            panoman_ms,
+            lbs_ms,
+            panoman_converged: a.report.converged(),
+            lbs_converged: b.report.converged(),
+        };
+        if rows
+            .iter()
+            .all(|r| r.panoman.all_mean < row.panoman.all_mean)
+        {
+            worst = Some(MeshTriple {
+                truth,
+                panoman: a.vertices,
+                lbs: b.vertices,
+            });
+        }
+        rows.push(row);
+        progress(k + 1, frames.len(), &row);
+    }
+    Ok(TrackReport {
+        panoman: stats(&rows, |r| (r.panoman, r.panoman_ms, r.panoman_converged)),
+        lbs: stats(&rows, |r| (r.lbs, r.lbs_ms, r.lbs_converged)),
+        generate_ms_per_frame: gen_s * 1e3 / rows.len() as f64,
+        setup_seconds,
+        n_vertices: model.n_vertices(),
+        frames: rows,
+        worst,
+    })
+}
+
+/// [`track_generated`] on the retarget `rt` of `bvh` (in metres, as calibrated): the
+/// generator parameters of the frames `range` selects.
+///
+/// # Errors
+/// [`select_frames`]'s for the range, then [`track_generated`]'s.
+pub fn track_retarget(
+    model: &Model,
+    rt: &CmuRetarget,
+    bvh: &Bvh,
+    range: FrameRange,
+    progress: TrackProgress,
+) -> Result<TrackReport> {
+    let frames = select_frames(bvh.n_frames(), range)?;
+    let params: Vec<(usize, GeneratorParams)> =
+        frames.iter().map(|&f| (f, rt.params(bvh, f))).collect();
+    track_generated(model, &params, progress)
+}
