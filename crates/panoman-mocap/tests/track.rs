@@ -23,7 +23,11 @@ fn excerpt_is_tracked_by_both_methods() {
         .expect("loads");
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/01_01_head.bvh");
     let bvh = read_bvh(&path).unwrap().scaled(CMU_UNIT_M);
-    let rig = model.inner().rig.clone().expect("the small model carries its rig");
+    let rig = model
+        .inner()
+        .rig
+        .clone()
+        .expect("the small model carries its rig");
     let shape = ShapeParams::default();
     let identity = rig.generator.identity(&shape).unwrap();
     let rt = CmuRetarget::calibrate(&identity, &shape, &bvh, 0).unwrap();
@@ -43,7 +47,10 @@ fn excerpt_is_tracked_by_both_methods() {
     assert_eq!(frames, (0..n).step_by(3).collect::<Vec<_>>());
     for s in [&rep.panoman, &rep.lbs] {
         assert!(s.mean_mm.is_finite() && s.mean_mm >= 0.0, "{s:?}");
-        assert!(s.median_mm <= s.max_mm && s.mean_mm <= s.max_mm + 1e-9, "{s:?}");
+        assert!(
+            s.median_mm <= s.max_mm && s.mean_mm <= s.max_mm + 1e-9,
+            "{s:?}"
+        );
         assert!(s.max_vertex_mm >= s.max_mm, "{s:?}");
         assert!(s.ms_per_frame > 0.0);
         assert!(frames.contains(&s.worst_frame));
