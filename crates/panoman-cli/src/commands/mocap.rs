@@ -360,7 +360,7 @@ fn run_track(
     let t = std::time::Instant::now();
     let tty = std::io::IsTerminal::is_terminal(&std::io::stderr());
     let mut progress = |done: usize, total: usize, r: &panoman_mocap::track::TrackFrame| {
-        if tty || done % 50 == 0 || done == total {
+        if tty || done.is_multiple_of(50) || done == total {
             eprint!(
                 "\rtracking {done}/{total}: frame {} PanoMan {:.1} mm, LBS {:.1} mm{}",
                 r.frame,
