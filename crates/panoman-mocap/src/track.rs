@@ -15,6 +15,7 @@ use std::time::Instant;
 
 use panoman::eval::{Groups, MeshTriple, PartErrors};
 use panoman::{FitRequest, IkStart, Method, Model, Targets, Tracker};
+use panoman_fit::twist::median;
 use panoman_human::params::GeneratorParams;
 use serde::Serialize;
 
@@ -124,16 +125,6 @@ pub struct TrackReport {
 /// Progress of [`track_generated`]: `(frames done, frames in all, the last frame's row)`.
 pub type TrackProgress<'a> = &'a mut dyn FnMut(usize, usize, &TrackFrame);
 
-fn median(v: &[f64]) -> f64 {
-    let mut v = v.to_vec();
-    v.sort_by(f64::total_cmp);
-    match v.len() {
-        0 => f64::NAN,
-        n if n % 2 == 1 => v[n / 2],
-        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
-    }
-}
-
 fn stats(
     rows: &[TrackFrame],
     pick: impl Fn(&TrackFrame) -> (PartErrors, f64, bool),
@@ -152,7 +143,7 @@ fn stats(
     let warm = if ms.len() > 1 { &ms[1..] } else { &ms[..] };
     MethodStats {
         mean_mm: errs.iter().sum::<f64>() / n,
-        median_mm: median(&errs),
+        median_mm: median(&mut errs.clone()),
         max_mm: max,
         worst_frame: rows.get(worst).map_or(0, |r| r.frame),
         max_vertex_mm: rows.iter().map(|r| pick(r).0.all_max).fold(0.0, f64::max),
@@ -160,7 +151,7 @@ fn stats(
         face_mean_mm: part(|p| p.face_mean),
         hands_mean_mm: part(|p| p.hands_mean),
         ms_per_frame: ms.iter().sum::<f64>() / n,
-        median_ms_per_frame: median(&ms),
+        median_ms_per_frame: median(&mut ms.clone()),
         warm_ms_per_frame: warm.iter().sum::<f64>() / warm.len().max(1) as f64,
         not_converged: rows.iter().filter(|r| !pick(r).2).count(),
     }
