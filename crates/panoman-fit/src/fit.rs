@@ -31,6 +31,7 @@ use panoman_human::keypoints::{KeypointGroup, KeypointsFile};
 use panoman_mesh::align::{Rigid, axis_angle, rigid_align};
 use panoman_mesh::geom::{V3, add, dot, matmul, matvec, norm, scale, sub};
 use panoman_mesh::shell::{
+    PcgOptions,
     Handle, PointConstraint, ShellOptions, ShellReport, ShellSolver, ShellTargets,
 };
 use panoman_mesh::{RestGeometry, Rla, Topology};
@@ -127,6 +128,10 @@ pub struct FitOptions {
     /// Thresholds of the quality check of the initializer and of the fit
     /// ([`crate::quality`]).
     pub quality: QualityOptions,
+    /// V-steps solved inexactly by preconditioned conjugate gradients instead of a sparse
+    /// factorization ([`panoman_mesh::shell::PcgOptions`]; falls back to the factorization
+    /// when PCG misses its tolerance). Default `None`; [`warm_fit_options`] sets it.
+    pub pcg: Option<PcgOptions>,
 }
 
 impl Default for FitOptions {
@@ -154,6 +159,7 @@ impl Default for FitOptions {
             placement: Placement::Aligned,
             motion_weight: 1.0,
             quality: QualityOptions::default(),
+            pcg: None,
         }
     }
 }
@@ -165,11 +171,14 @@ impl Default for FitOptions {
 /// from the default damping μ₀ = 1 (on the eval's held-out clip, first 24 frames, default
 /// model: μ₀ = 1e−2 / 0.3 / 1 / 10 gave 3.49 / 3.37 / 3.35 / 3.34 mm against the
 /// initializer's 3.34 mm). The placement is propagated from the previous frame instead of
-/// re-solving `g`.
+/// re-solving `g`. The step is solved by PCG ([`PcgOptions::default`]): with μ = 1 the damped
+/// system is well conditioned, and 6–14 conjugate-gradient products replace the numeric
+/// factorization (docs/design/shell-fit.md §3.5).
 pub fn warm_fit_options() -> FitOptions {
     FitOptions {
         step_iterations: 1,
         placement: Placement::Propagated,
+        pcg: Some(PcgOptions::default()),
         ..FitOptions::default()
     }
 }
@@ -619,6 +628,7 @@ impl Fitter {
                 retry_rejected: opts.step_retries,
                 mu_init: mu,
                 parallel_factor: opts.parallel_factor,
+                pcg: opts.pcg,
                 ..Default::default()
             },
         )?;

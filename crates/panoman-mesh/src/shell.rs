@@ -316,6 +316,39 @@ pub struct ShellOptions {
     /// Numeric factorization on the rayon pool (`Par::rayon(0)`) instead of sequentially.
     /// Default true.
     pub parallel_factor: bool,
+    /// Inexact steps by preconditioned conjugate gradients instead of a factorization
+    /// ([`ShellSolver::step_pcg`]); a step whose PCG does not reach its tolerance falls back
+    /// to the factorization. Default `None` (every step factored).
+    pub pcg: Option<PcgOptions>,
+}
+
+/// Inexact LM steps by preconditioned conjugate gradients (Hestenes–Stiefel 1952) on
+/// `(JᵀJ + μD) δ = −g`, preconditioned by the 3×3 vertex blocks of the damped matrix
+/// (block Jacobi). With the Marquardt scaling D = diag JᵀJ the scaled matrix has its
+/// eigenvalues in `[μ, μ + λ_max]` with `λ_max` bounded by the number of coupled unknowns
+/// per row (Gershgorin, scaled entries ≤ 1), so for the strongly damped steps of warm frames
+/// (μ ≈ 1) the condition number is a few tens whatever the stiffness ratio of the energy,
+/// and a few tens of matrix–vector products (≈ 2 ms each on the full template) replace a
+/// numeric factorization (≈ 100 ms). The gain ratio uses the model decrease of the inexact
+/// step, `δᵀ(μDδ − g + ρ)` with ρ the final PCG residual (docs/design/shell-fit.md §3.5).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PcgOptions {
+    /// Stop when `‖ρ‖ ≤ rel_tol·‖g‖` (ρ = −g − (JᵀJ + μD)δ). Default 1e−2 (on the eval's
+    /// clip, warm frames: 6–14 iterations, the same tracking error as 1e−3 and as the
+    /// factorization to 0.01 mm).
+    pub rel_tol: f64,
+    /// Iteration cap; not reaching `rel_tol` within it falls back to the factorization.
+    /// Default 60.
+    pub max_iterations: usize,
+}
+
+impl Default for PcgOptions {
+    fn default() -> Self {
+        Self {
+            rel_tol: 1e-2,
+            max_iterations: 60,
+        }
+    }
 }
 
 impl Default for ShellOptions {
@@ -329,6 +362,7 @@ impl Default for ShellOptions {
             mu_init: 1e-4,
             degenerate_height: 1e-6,
             parallel_factor: true,
+            pcg: None,
         }
     }
 }
@@ -374,6 +408,13 @@ pub struct ShellReport {
     pub mu: f64,
     /// Stopping reason.
     pub stop: ShellStop,
+    /// Steps solved by PCG ([`ShellOptions::pcg`]) and their conjugate-gradient iterations in
+    /// all; steps where PCG missed its tolerance and the factorization was used instead.
+    pub pcg_steps: usize,
+    /// See `pcg_steps`.
+    pub pcg_iterations: usize,
+    /// See `pcg_steps`.
+    pub pcg_fallbacks: usize,
 }
 
 /// Residuals and Jacobian rows of one edge: the stretch row on (x_i, x_j) and the bend row on
@@ -877,14 +918,37 @@ impl ShellSolver {
         assert!(v.len() == self.n && out.len() == self.n && self.linearized);
         out.fill(0.0);
         let cp = self.pattern.col_ptr();
-        let ri = self.pattern.row_idx();
-        for c in 0..self.n {
-            for p in cp[c]..cp[c + 1] {
-                let r = ri[p];
-                out[r] += self.jtj[p] * v[c];
-                if r != c {
-                    out[c] += self.jtj[p] * v[r];
+        let vals = &self.jtj;
+        // By 3×3 vertex blocks (the pattern's layout, `build`): column 3b+c holds the lower
+        // diagonal block from row 3b+c on, then 3 rows per upper neighbour a > b.
+        for b in 0..self.n / 3 {
+            let vb = [v[3 * b], v[3 * b + 1], v[3 * b + 2]];
+            let base = [cp[3 * b], cp[3 * b + 1], cp[3 * b + 2]];
+            let d = [
+                [vals[base[0]], vals[base[0] + 1], vals[base[0] + 2]],
+                [vals[base[0] + 1], vals[base[1]], vals[base[1] + 1]],
+                [vals[base[0] + 2], vals[base[1] + 1], vals[base[2]]],
+            ];
+            let mut yb = [0.0; 3];
+            for r in 0..3 {
+                yb[r] = d[r][0] * vb[0] + d[r][1] * vb[1] + d[r][2] * vb[2];
+            }
+            let nbs = &self.pairs[self.nb_off[b]..self.nb_off[b + 1]];
+            for (q, &(_, a)) in nbs.iter().enumerate() {
+                let a = 3 * a as usize;
+                let o = [base[0] + 3 + 3 * q, base[1] + 2 + 3 * q, base[2] + 1 + 3 * q];
+                let va = [v[a], v[a + 1], v[a + 2]];
+                for r in 0..3 {
+                    // L[r][c] = vals[o[c] + r]: row 3a+r, column 3b+c.
+                    let (l0, l1, l2) = (vals[o[0] + r], vals[o[1] + r], vals[o[2] + r]);
+                    out[a + r] += l0 * vb[0] + l1 * vb[1] + l2 * vb[2];
+                    yb[0] += l0 * va[r];
+                    yb[1] += l1 * va[r];
+                    yb[2] += l2 * va[r];
                 }
+            }
+            for c in 0..3 {
+                out[3 * b + c] += yb[c];
             }
         }
         if let Some(ds) = &self.dense {
@@ -1021,6 +1085,106 @@ impl ShellSolver {
         Ok(())
     }
 
+    /// Solves `(JᵀJ + μD) δ = −g` for the last linearisation inexactly by preconditioned
+    /// conjugate gradients ([`PcgOptions`]; block-Jacobi preconditioner of the damped
+    /// matrix's 3×3 vertex blocks, the dense supports' diagonal `W b_m² I` included; the
+    /// supports' couplings enter through the product of [`ShellSolver::normal_matrix_mul`]).
+    /// `None` when the tolerance is not reached within the cap or a block is not positive
+    /// definite (then `delta` is unspecified; use [`ShellSolver::step`]).
+    pub fn step_pcg(&mut self, mu: f64, opts: &PcgOptions, delta: &mut [f64]) -> Option<PcgOutcome> {
+        assert!(self.linearized && delta.len() == self.n);
+        let n = self.n;
+        let nv = n / 3;
+        let cp = self.pattern.col_ptr();
+        // Per vertex: the damped 3×3 diagonal block (stored first in its three columns).
+        let mut blocks = vec![[[0.0f64; 3]; 3]; nv];
+        for (v, b) in blocks.iter_mut().enumerate() {
+            for c in 0..3 {
+                let base = cp[3 * v + c] - c;
+                for r in c..3 {
+                    b[r][c] = self.jtj[base + r];
+                    b[c][r] = self.jtj[base + r];
+                }
+            }
+        }
+        if let Some(ds) = &self.dense {
+            for (k, rows) in ds.rows.iter().enumerate() {
+                let w = ds.weight[k];
+                if w <= 0.0 {
+                    continue;
+                }
+                for &(v, bm) in rows {
+                    for c in 0..3 {
+                        blocks[v as usize][c][c] += w * bm * bm;
+                    }
+                }
+            }
+        }
+        let mut inv = vec![[[0.0f64; 3]; 3]; nv];
+        for (v, (b, out)) in blocks.iter_mut().zip(inv.iter_mut()).enumerate() {
+            for c in 0..3 {
+                b[c][c] += mu * self.diag_scale[3 * v + c];
+            }
+            *out = sym3_inverse(b)?;
+        }
+        let precond = |r: &[f64], z: &mut [f64]| {
+            for (v, m) in inv.iter().enumerate() {
+                let q = [r[3 * v], r[3 * v + 1], r[3 * v + 2]];
+                for c in 0..3 {
+                    z[3 * v + c] = m[c][0] * q[0] + m[c][1] * q[1] + m[c][2] * q[2];
+                }
+            }
+        };
+        let mut r: Vec<f64> = self.grad.iter().map(|g| -g).collect();
+        let g_norm = r.iter().map(|x| x * x).sum::<f64>().sqrt();
+        delta.fill(0.0);
+        if g_norm == 0.0 {
+            return Some(PcgOutcome {
+                iterations: 0,
+                residual_dot_step: 0.0,
+            });
+        }
+        let mut z = vec![0.0; n];
+        precond(&r, &mut z);
+        let mut p = z.clone();
+        let mut q = vec![0.0; n];
+        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        for it in 1..=opts.max_iterations {
+            self.normal_matrix_mul(&p, &mut q);
+            for c in 0..n {
+                q[c] += mu * self.diag_scale[c] * p[c];
+            }
+            let pq: f64 = p.iter().zip(&q).map(|(a, b)| a * b).sum();
+            if !(pq > 0.0) {
+                return None;
+            }
+            let alpha = rz / pq;
+            for c in 0..n {
+                delta[c] += alpha * p[c];
+                r[c] -= alpha * q[c];
+            }
+            let r_norm = r.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if !r_norm.is_finite() {
+                return None;
+            }
+            if r_norm <= opts.rel_tol * g_norm {
+                let residual_dot_step = r.iter().zip(delta.iter()).map(|(a, b)| a * b).sum();
+                return Some(PcgOutcome {
+                    iterations: it,
+                    residual_dot_step,
+                });
+            }
+            precond(&r, &mut z);
+            let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for c in 0..n {
+                p[c] = z[c] + beta * p[c];
+            }
+        }
+        None
+    }
+
     /// Minimises E from `x` (e.g. the output of `g`) by Levenberg–Marquardt (docs/design/shell-fit.md
     /// §3.3–3.4): gain ratio `ρ = (E − E_new)/(δᵀ(μDδ − g))` (the decrease predicted by the
     /// Gauss–Newton model), accept if ρ > 1e−3 with `μ ← μ·max(1/3, 1 − (2ρ − 1)³)`, `ν ← 2`,
@@ -1049,6 +1213,9 @@ impl ShellSolver {
             skipped_bend_rows: 0,
             mu: opts.mu_init,
             stop: ShellStop::MaxIterations,
+            pcg_steps: 0,
+            pcg_iterations: 0,
+            pcg_fallbacks: 0,
         };
         report.energies.push(e);
         let mut mu = opts.mu_init.max(MU_MIN);
@@ -1067,7 +1234,24 @@ impl ShellSolver {
             while used < opts.max_iterations {
                 let t_it = Instant::now();
                 report.iterations += 1;
-                let accepted = match self.step(mu, opts.parallel_factor, &mut delta) {
+                // δᵀρ of an inexact (PCG) step, 0 for a factored one.
+                let mut residual_term = 0.0;
+                let solved = match opts.pcg {
+                    Some(pcg) => match self.step_pcg(mu, &pcg, &mut delta) {
+                        Some(out) => {
+                            report.pcg_steps += 1;
+                            report.pcg_iterations += out.iterations;
+                            residual_term = out.residual_dot_step;
+                            Ok(())
+                        }
+                        None => {
+                            report.pcg_fallbacks += 1;
+                            self.step(mu, opts.parallel_factor, &mut delta)
+                        }
+                    },
+                    None => self.step(mu, opts.parallel_factor, &mut delta),
+                };
+                let accepted = match solved {
                     Err(MeshError::Numerical(_)) => None,
                     Err(err) => return Err(err),
                     Ok(()) => {
@@ -1085,7 +1269,7 @@ impl ShellSolver {
                             }
                         }
                         let e_new = energy_of(&self.topo, targets, &x_trial, &mut self.chunk_sums);
-                        let mut pred = 0.0;
+                        let mut pred = residual_term;
                         for c in 0..self.n {
                             pred += delta[c] * (mu * self.diag_scale[c] * delta[c] - self.grad[c]);
                         }
@@ -1305,6 +1489,38 @@ impl DenseSupports {
         delta.copy_from_slice(&self.rhs[..n]);
         Ok(())
     }
+}
+
+/// What [`ShellSolver::step_pcg`] did: conjugate-gradient iterations and `δᵀρ` with ρ the
+/// final residual `−g − (JᵀJ + μD)δ` (the inexact step's correction to the predicted decrease).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PcgOutcome {
+    /// Conjugate-gradient iterations (matrix–vector products).
+    pub iterations: usize,
+    /// `δᵀρ`.
+    pub residual_dot_step: f64,
+}
+
+/// Inverse of a symmetric 3×3 matrix by its adjugate; `None` unless positive definite
+/// (leading minors > 0).
+fn sym3_inverse(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let c00 = m[1][1] * m[2][2] - m[1][2] * m[2][1];
+    let c01 = m[1][2] * m[2][0] - m[1][0] * m[2][2];
+    let c02 = m[1][0] * m[2][1] - m[1][1] * m[2][0];
+    let det = m[0][0] * c00 + m[0][1] * c01 + m[0][2] * c02;
+    let minor2 = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+    if !(m[0][0] > 0.0 && minor2 > 0.0 && det > 0.0 && det.is_finite()) {
+        return None;
+    }
+    let c11 = m[0][0] * m[2][2] - m[0][2] * m[2][0];
+    let c12 = m[0][1] * m[2][0] - m[0][0] * m[2][1];
+    let c22 = minor2;
+    let d = 1.0 / det;
+    Some([
+        [c00 * d, c01 * d, c02 * d],
+        [c01 * d, c11 * d, c12 * d],
+        [c02 * d, c12 * d, c22 * d],
+    ])
 }
 
 /// Unweighted rms of `ℓ_e/ℓ*_e − 1` over all edges and of `wrap(φ_e − φ*_e)` over interior

@@ -8,7 +8,7 @@ use panoman_mesh::align::aligned_error;
 use panoman_mesh::geom::{V3, norm, sub};
 use panoman_mesh::rla::{dihedral_angles, edge_lengths};
 use panoman_mesh::shell::{
-    Handle, PointConstraint, ShellOptions, ShellSolver, ShellStop, ShellTargets,
+    Handle, PcgOptions, PointConstraint, ShellOptions, ShellSolver, ShellStop, ShellTargets,
 };
 use panoman_mesh::sparse::SpdFactor;
 use panoman_mesh::{Reconstructor, Topology};
@@ -395,8 +395,11 @@ fn noisy_angles_exact_lengths_stay_nearly_isometric() {
 /// A wide point support (a keypoint regressor over many vertices) kept out of JᵀJ through the
 /// quasi-definite system gives the same energy, gradient, normal-matrix products, LM steps and
 /// solve as assembling its dense clique into the pattern.
-#[test]
-fn dense_support_matches_the_assembled_clique() {
+/// The dense-support problem of [`dense_support_matches_the_assembled_clique`]: a deformed
+/// sphere with generic shell targets, two wide point supports over a third of the vertices
+/// each (one vertex listed twice), the first given twice, and a third registered support
+/// without a constraint. Returns (topology, targets, start, supports, mean edge).
+fn dense_support_problem() -> (Topology, ShellTargets, Vec<V3>, Vec<Vec<(u32, f64)>>, f64) {
     let (x0, topo) = deformed_sphere(2);
     let (mut targets, x) = generic_problem(&x0, &topo, 21);
     let ml = mean_edge(&topo, &x0);
@@ -429,6 +432,12 @@ fn dense_support_matches_the_assembled_clique() {
         weight: 2.0 / (ml * ml),
         normal: None,
     });
+    (topo, targets, x, wide, ml)
+}
+
+#[test]
+fn dense_support_matches_the_assembled_clique() {
+    let (topo, targets, x, wide, ml) = dense_support_problem();
     let mut pairs: Vec<(u32, u32)> = EXTRA_PAIRS.to_vec();
     for rows in &wide {
         for (p, &(a, _)) in rows.iter().enumerate() {
@@ -525,4 +534,87 @@ fn rejected_steps_are_retried_within_the_budget() {
     assert_eq!(retried.energies.len(), retried.iterations + 1);
     assert!(retried.energies.last().unwrap() < &retried.energies[0]);
     assert_eq!(retried.stop, ShellStop::MaxIterations);
+}
+
+/// PCG steps (docs/design/shell-fit.md §3.5): at a tight tolerance they equal the factored step
+/// (the damped system is SPD, CG's error in the energy norm falls below the tolerance's);
+/// at the warm frames' tolerance an LM solve with them lowers the energy as far as the
+/// factored solve up to the inexactness; a cap that cannot be met falls back to the
+/// factorization and reproduces the factored solve.
+#[test]
+fn pcg_steps_match_the_factored_step() {
+    let (topo, targets, x, wide, _) = dense_support_problem();
+    let mut solver = ShellSolver::with_dense_supports(&topo, &EXTRA_PAIRS, &wide).unwrap();
+    solver.linearize(&targets, &x, 1e-6).unwrap();
+    let n = 3 * x.len();
+    for mu in [1.0, 1e-2] {
+        let (mut d1, mut d2) = (vec![0.0; n], vec![0.0; n]);
+        solver.step(mu, false, &mut d1).unwrap();
+        let tight = PcgOptions {
+            rel_tol: 1e-11,
+            max_iterations: 20 * n,
+        };
+        let out = solver.step_pcg(mu, &tight, &mut d2).expect("PCG converges");
+        let ed = rel_err(&d2, &d1);
+        println!("μ {mu:e}: {} PCG iterations, relative difference {ed:.2e}", out.iterations);
+        assert!(ed < 1e-6, "μ {mu}: PCG vs factored step {ed:e}");
+        assert!(out.iterations < n, "{} iterations for n = {n}", out.iterations);
+        // A cap of one iteration cannot reach the tolerance: no step.
+        let capped = PcgOptions {
+            rel_tol: 1e-11,
+            max_iterations: 1,
+        };
+        assert!(solver.step_pcg(mu, &capped, &mut d2).is_none());
+    }
+    let base = ShellOptions {
+        max_iterations: 4,
+        mu_init: 1.0,
+        parallel_factor: false,
+        ..Default::default()
+    };
+    let run = |opts: &ShellOptions| {
+        let mut s = ShellSolver::with_dense_supports(&topo, &EXTRA_PAIRS, &wide).unwrap();
+        let mut y = x.clone();
+        let r = s.solve(&targets, &mut y, opts).unwrap();
+        (r, y)
+    };
+    let (r_direct, y_direct) = run(&base);
+    let (r_pcg, _) = run(&ShellOptions {
+        pcg: Some(PcgOptions::default()),
+        ..base
+    });
+    let last = |r: &panoman_mesh::shell::ShellReport| *r.energies.last().unwrap();
+    println!(
+        "energy {:.6e} → factored {:.6e}, PCG {:.6e} ({} steps, {} iterations, {} fallbacks)",
+        r_direct.energies[0],
+        last(&r_direct),
+        last(&r_pcg),
+        r_pcg.pcg_steps,
+        r_pcg.pcg_iterations,
+        r_pcg.pcg_fallbacks
+    );
+    assert_eq!(r_pcg.accepted, r_direct.accepted);
+    assert!(r_pcg.pcg_steps >= r_pcg.accepted && r_pcg.pcg_fallbacks == 0);
+    assert!(last(&r_direct) < 0.9 * r_direct.energies[0]);
+    // An inexact step loses at most tol²·κ(JᵀJ + μD) of the exact step's model decrease
+    // (‖e‖²_A ≤ ‖ρ‖²/λ_min, ‖δ*‖²_A ≥ ‖g‖²/λ_max); here ≈ 10⁻⁴ of it per step (measured:
+    // 7·10⁻⁵ of the decrease after 4 steps). 5 % leaves room for the steps' compounding.
+    let dec = r_direct.energies[0] - last(&r_direct);
+    assert!(
+        (last(&r_pcg) - last(&r_direct)).abs() < 0.05 * dec,
+        "PCG {} vs factored {}",
+        last(&r_pcg),
+        last(&r_direct)
+    );
+    let (r_fb, y_fb) = run(&ShellOptions {
+        pcg: Some(PcgOptions {
+            rel_tol: 1e-11,
+            max_iterations: 1,
+        }),
+        ..base
+    });
+    assert_eq!(r_fb.pcg_steps, 0);
+    assert_eq!(r_fb.pcg_fallbacks, r_fb.iterations);
+    assert_eq!(r_fb.energies, r_direct.energies);
+    assert_eq!(y_fb, y_direct);
 }
