@@ -132,6 +132,13 @@ pub struct FitOptions {
     /// factorization ([`panoman_mesh::shell::PcgOptions`]; falls back to the factorization
     /// when PCG misses its tolerance). Default `None`; [`warm_fit_options`] sets it.
     pub pcg: Option<PcgOptions>,
+    /// Fixed-point iterations `β ← LS(RLA − R(β))` of each β-step with the correction MLP
+    /// (each one MLP evaluation and one projection). Default 2.
+    pub correction_iterations: usize,
+    /// Start those iterations from the β at hand (the frame's earlier β-step, else the
+    /// previous frame's) instead of the uncorrected projection. Default false;
+    /// [`warm_fit_options`] sets it with one iteration.
+    pub correction_warm_start: bool,
 }
 
 impl Default for FitOptions {
@@ -160,6 +167,8 @@ impl Default for FitOptions {
             motion_weight: 1.0,
             quality: QualityOptions::default(),
             pcg: None,
+            correction_iterations: 2,
+            correction_warm_start: false,
         }
     }
 }
@@ -173,12 +182,16 @@ impl Default for FitOptions {
 /// initializer's 3.34 mm). The placement is propagated from the previous frame instead of
 /// re-solving `g`. The step is solved by PCG ([`PcgOptions::default`]): with μ = 1 the damped
 /// system is well conditioned, and 6–14 conjugate-gradient products replace the numeric
-/// factorization (docs/design/shell-fit.md §3.5).
+/// factorization (docs/design/shell-fit.md §3.5). Each β-step makes one fixed-point iteration
+/// of the correction from the β at hand instead of two from the uncorrected projection (on
+/// the eval's clip: the same tracking error to 10⁻⁵ mm, the warm frame 137 → 114 ms).
 pub fn warm_fit_options() -> FitOptions {
     FitOptions {
         step_iterations: 1,
         placement: Placement::Propagated,
         pcg: Some(PcgOptions::default()),
+        correction_iterations: 1,
+        correction_warm_start: true,
         ..FitOptions::default()
     }
 }
@@ -645,9 +658,26 @@ impl Fitter {
         opts: &FitOptions,
     ) -> Result<()> {
         let rla = Rla::compute(self.ev.topology(), rg, x)?;
-        self.ev.encode_beta(&rla, params, None)?;
+        // Fixed point β ← LS(RLA − R(β)) of the correction (docs/design/shell-fit.md §4):
+        // from the uncorrected projection, or (`correction_warm_start`) from the β at hand —
+        // this frame's earlier β-step, else the previous frame's.
+        let body = &self.model.blocks[0].name;
+        let warm = opts.correction_warm_start
+            && self.model.correction.is_some()
+            && opts.correction
+            && (params.beta.contains_key(body)
+                || c.previous.as_ref().is_some_and(|p| p.params.beta.contains_key(body)));
+        if warm {
+            if !params.beta.contains_key(body)
+                && let Some(prev) = &c.previous
+            {
+                params.beta = prev.params.beta.clone();
+            }
+        } else {
+            self.ev.encode_beta(&rla, params, None)?;
+        }
         if opts.correction && self.model.correction.is_some() {
-            for _ in 0..2 {
+            for _ in 0..opts.correction_iterations {
                 let r = self
                     .model
                     .correction_residual(params)
