@@ -31,8 +31,7 @@ use panoman_human::keypoints::{KeypointGroup, KeypointsFile};
 use panoman_mesh::align::{Rigid, axis_angle, rigid_align};
 use panoman_mesh::geom::{V3, add, dot, matmul, matvec, norm, scale, sub};
 use panoman_mesh::shell::{
-    PcgOptions,
-    Handle, PointConstraint, ShellOptions, ShellReport, ShellSolver, ShellTargets,
+    Handle, PcgOptions, PointConstraint, ShellOptions, ShellReport, ShellSolver, ShellTargets,
 };
 use panoman_mesh::{RestGeometry, Rla, Topology};
 use panoman_model::model::{Evaluator, PanoManModel, Params};
@@ -666,7 +665,9 @@ impl Fitter {
             && self.model.correction.is_some()
             && opts.correction
             && (params.beta.contains_key(body)
-                || c.previous.as_ref().is_some_and(|p| p.params.beta.contains_key(body)));
+                || c.previous
+                    .as_ref()
+                    .is_some_and(|p| p.params.beta.contains_key(body)));
         if warm {
             if !params.beta.contains_key(body)
                 && let Some(prev) = &c.previous

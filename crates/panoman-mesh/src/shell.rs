@@ -936,7 +936,11 @@ impl ShellSolver {
             let nbs = &self.pairs[self.nb_off[b]..self.nb_off[b + 1]];
             for (q, &(_, a)) in nbs.iter().enumerate() {
                 let a = 3 * a as usize;
-                let o = [base[0] + 3 + 3 * q, base[1] + 2 + 3 * q, base[2] + 1 + 3 * q];
+                let o = [
+                    base[0] + 3 + 3 * q,
+                    base[1] + 2 + 3 * q,
+                    base[2] + 1 + 3 * q,
+                ];
                 let va = [v[a], v[a + 1], v[a + 2]];
                 for r in 0..3 {
                     // L[r][c] = vals[o[c] + r]: row 3a+r, column 3b+c.
@@ -1091,7 +1095,12 @@ impl ShellSolver {
     /// supports' couplings enter through the product of [`ShellSolver::normal_matrix_mul`]).
     /// `None` when the tolerance is not reached within the cap or a block is not positive
     /// definite (then `delta` is unspecified; use [`ShellSolver::step`]).
-    pub fn step_pcg(&mut self, mu: f64, opts: &PcgOptions, delta: &mut [f64]) -> Option<PcgOutcome> {
+    pub fn step_pcg(
+        &mut self,
+        mu: f64,
+        opts: &PcgOptions,
+        delta: &mut [f64],
+    ) -> Option<PcgOutcome> {
         assert!(self.linearized && delta.len() == self.n);
         let n = self.n;
         let nv = n / 3;
@@ -1155,7 +1164,8 @@ impl ShellSolver {
                 q[c] += mu * self.diag_scale[c] * p[c];
             }
             let pq: f64 = p.iter().zip(&q).map(|(a, b)| a * b).sum();
-            if !(pq > 0.0) {
+            // Not positive (or NaN): not a descent direction of an SPD system.
+            if pq.is_nan() || pq <= 0.0 {
                 return None;
             }
             let alpha = rz / pq;

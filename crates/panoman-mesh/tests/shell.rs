@@ -395,11 +395,14 @@ fn noisy_angles_exact_lengths_stay_nearly_isometric() {
 /// A wide point support (a keypoint regressor over many vertices) kept out of JᵀJ through the
 /// quasi-definite system gives the same energy, gradient, normal-matrix products, LM steps and
 /// solve as assembling its dense clique into the pattern.
+/// (topology, targets, start, supports, mean edge) of [`dense_support_problem`].
+type DenseSupportProblem = (Topology, ShellTargets, Vec<V3>, Vec<Vec<(u32, f64)>>, f64);
+
 /// The dense-support problem of [`dense_support_matches_the_assembled_clique`]: a deformed
 /// sphere with generic shell targets, two wide point supports over a third of the vertices
 /// each (one vertex listed twice), the first given twice, and a third registered support
 /// without a constraint. Returns (topology, targets, start, supports, mean edge).
-fn dense_support_problem() -> (Topology, ShellTargets, Vec<V3>, Vec<Vec<(u32, f64)>>, f64) {
+fn dense_support_problem() -> DenseSupportProblem {
     let (x0, topo) = deformed_sphere(2);
     let (mut targets, x) = generic_problem(&x0, &topo, 21);
     let ml = mean_edge(&topo, &x0);
@@ -556,9 +559,16 @@ fn pcg_steps_match_the_factored_step() {
         };
         let out = solver.step_pcg(mu, &tight, &mut d2).expect("PCG converges");
         let ed = rel_err(&d2, &d1);
-        println!("μ {mu:e}: {} PCG iterations, relative difference {ed:.2e}", out.iterations);
+        println!(
+            "μ {mu:e}: {} PCG iterations, relative difference {ed:.2e}",
+            out.iterations
+        );
         assert!(ed < 1e-6, "μ {mu}: PCG vs factored step {ed:e}");
-        assert!(out.iterations < n, "{} iterations for n = {n}", out.iterations);
+        assert!(
+            out.iterations < n,
+            "{} iterations for n = {n}",
+            out.iterations
+        );
         // A cap of one iteration cannot reach the tolerance: no step.
         let capped = PcgOptions {
             rel_tol: 1e-11,
