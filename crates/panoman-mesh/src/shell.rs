@@ -463,6 +463,8 @@ pub struct ShellSolver {
     delta: Vec<f64>,
     x_trial: Vec<V3>,
     chunk_sums: Vec<f64>,
+    /// Buffers of [`ShellSolver::step_pcg`] (sized on first use, kept across steps).
+    pcg: PcgScratch,
     skipped: usize,
     linearized: bool,
     /// Point supports kept out of JᵀJ and solved through the quasi-definite system (see
@@ -678,6 +680,7 @@ impl ShellSolver {
             delta: Vec::new(),
             x_trial: Vec::new(),
             chunk_sums: Vec::new(),
+            pcg: PcgScratch::default(),
             skipped: 0,
             linearized: false,
             dense: None,
@@ -1102,17 +1105,32 @@ impl ShellSolver {
         delta: &mut [f64],
     ) -> Option<PcgOutcome> {
         assert!(self.linearized && delta.len() == self.n);
+        let mut ws = std::mem::take(&mut self.pcg);
+        let out = self.pcg_iterate(mu, opts, delta, &mut ws);
+        self.pcg = ws;
+        out
+    }
+
+    /// The body of [`ShellSolver::step_pcg`] with its buffers passed in.
+    fn pcg_iterate(
+        &self,
+        mu: f64,
+        opts: &PcgOptions,
+        delta: &mut [f64],
+        ws: &mut PcgScratch,
+    ) -> Option<PcgOutcome> {
         let n = self.n;
-        let nv = n / 3;
         let cp = self.pattern.col_ptr();
-        // Per vertex: the damped 3×3 diagonal block (stored first in its three columns).
-        let mut blocks = vec![[[0.0f64; 3]; 3]; nv];
-        for (v, b) in blocks.iter_mut().enumerate() {
+        ws.resize(n);
+        let PcgScratch { inv, r, z, p, q } = ws;
+        // Per vertex: the damped 3×3 diagonal block (stored first in its three columns),
+        // inverted in place below.
+        for (v, b) in inv.iter_mut().enumerate() {
             for c in 0..3 {
                 let base = cp[3 * v + c] - c;
-                for r in c..3 {
-                    b[r][c] = self.jtj[base + r];
-                    b[c][r] = self.jtj[base + r];
+                for row in c..3 {
+                    b[row][c] = self.jtj[base + row];
+                    b[c][row] = self.jtj[base + row];
                 }
             }
         }
@@ -1124,18 +1142,18 @@ impl ShellSolver {
                 }
                 for &(v, bm) in rows {
                     for c in 0..3 {
-                        blocks[v as usize][c][c] += w * bm * bm;
+                        inv[v as usize][c][c] += w * bm * bm;
                     }
                 }
             }
         }
-        let mut inv = vec![[[0.0f64; 3]; 3]; nv];
-        for (v, (b, out)) in blocks.iter_mut().zip(inv.iter_mut()).enumerate() {
+        for (v, b) in inv.iter_mut().enumerate() {
             for c in 0..3 {
                 b[c][c] += mu * self.diag_scale[3 * v + c];
             }
-            *out = sym3_inverse(b)?;
+            *b = sym3_inverse(b)?;
         }
+        let inv = &*inv;
         let precond = |r: &[f64], z: &mut [f64]| {
             for (v, m) in inv.iter().enumerate() {
                 let q = [r[3 * v], r[3 * v + 1], r[3 * v + 2]];
@@ -1144,7 +1162,9 @@ impl ShellSolver {
                 }
             }
         };
-        let mut r: Vec<f64> = self.grad.iter().map(|g| -g).collect();
+        for (ri, g) in r.iter_mut().zip(&self.grad) {
+            *ri = -g;
+        }
         let g_norm = r.iter().map(|x| x * x).sum::<f64>().sqrt();
         delta.fill(0.0);
         if g_norm == 0.0 {
@@ -1153,17 +1173,15 @@ impl ShellSolver {
                 residual_dot_step: 0.0,
             });
         }
-        let mut z = vec![0.0; n];
-        precond(&r, &mut z);
-        let mut p = z.clone();
-        let mut q = vec![0.0; n];
-        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        precond(r, z);
+        p.copy_from_slice(z);
+        let mut rz: f64 = r.iter().zip(z.iter()).map(|(a, b)| a * b).sum();
         for it in 1..=opts.max_iterations {
-            self.normal_matrix_mul(&p, &mut q);
+            self.normal_matrix_mul(p, q);
             for c in 0..n {
                 q[c] += mu * self.diag_scale[c] * p[c];
             }
-            let pq: f64 = p.iter().zip(&q).map(|(a, b)| a * b).sum();
+            let pq: f64 = p.iter().zip(q.iter()).map(|(a, b)| a * b).sum();
             // Not positive (or NaN): not a descent direction of an SPD system.
             if pq.is_nan() || pq <= 0.0 {
                 return None;
@@ -1184,8 +1202,8 @@ impl ShellSolver {
                     residual_dot_step,
                 });
             }
-            precond(&r, &mut z);
-            let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+            precond(r, z);
+            let rz_new: f64 = r.iter().zip(z.iter()).map(|(a, b)| a * b).sum();
             let beta = rz_new / rz;
             rz = rz_new;
             for c in 0..n {
@@ -1509,6 +1527,28 @@ pub struct PcgOutcome {
     pub iterations: usize,
     /// `δᵀρ`.
     pub residual_dot_step: f64,
+}
+
+/// Buffers of [`ShellSolver::step_pcg`]: the inverted 3×3 vertex blocks of the
+/// preconditioner and the CG vectors (residual r, preconditioned z, direction p, product q).
+#[derive(Clone, Debug, Default)]
+struct PcgScratch {
+    inv: Vec<[[f64; 3]; 3]>,
+    r: Vec<f64>,
+    z: Vec<f64>,
+    p: Vec<f64>,
+    q: Vec<f64>,
+}
+
+impl PcgScratch {
+    /// Sizes the buffers for `n` unknowns (n/3 vertices); the blocks are zeroed.
+    fn resize(&mut self, n: usize) {
+        self.inv.clear();
+        self.inv.resize(n / 3, [[0.0; 3]; 3]);
+        for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
+            v.resize(n, 0.0);
+        }
+    }
 }
 
 /// Inverse of a symmetric 3×3 matrix by its adjugate; `None` unless positive definite

@@ -392,9 +392,6 @@ fn noisy_angles_exact_lengths_stay_nearly_isometric() {
     assert!(s_err < g_err, "c_B 0.1: shell error {s_err} vs g {g_err}");
 }
 
-/// A wide point support (a keypoint regressor over many vertices) kept out of JᵀJ through the
-/// quasi-definite system gives the same energy, gradient, normal-matrix products, LM steps and
-/// solve as assembling its dense clique into the pattern.
 /// (topology, targets, start, supports, mean edge) of [`dense_support_problem`].
 type DenseSupportProblem = (Topology, ShellTargets, Vec<V3>, Vec<Vec<(u32, f64)>>, f64);
 
@@ -438,6 +435,9 @@ fn dense_support_problem() -> DenseSupportProblem {
     (topo, targets, x, wide, ml)
 }
 
+/// A wide point support (a keypoint regressor over many vertices) kept out of JᵀJ through the
+/// quasi-definite system gives the same energy, gradient, normal-matrix products, LM steps and
+/// solve as assembling its dense clique into the pattern.
 #[test]
 fn dense_support_matches_the_assembled_clique() {
     let (topo, targets, x, wide, ml) = dense_support_problem();
