@@ -17,7 +17,7 @@ pub use fit::{
     Constraints, FitOptions, FitReport, FitResult, Fitter, Init, Placement, Previous, VertexHandle,
 };
 pub use pipeline::{
-    IkIcpOptions, Rig, Sequence, SequenceState, fit_frame, ik_config_for_noise, ik_fit, ik_icp,
-    init_of,
+    IkIcpOptions, Rig, Sequence, SequenceState, WARM_IK_TOLERANCE, fit_frame, ik_config_for_noise,
+    ik_fit, ik_icp, init_of,
 };
 pub mod twist;

@@ -214,10 +214,15 @@ impl Tracker {
         let c = self.fitter.constraints(targets, &self.request)?;
         let out = match self.request.method {
             Method::Lbs => {
-                let ikc = ik_config_for_noise(self.request.keypoint_sigma);
                 let warm = match self.ik_start {
                     IkStart::Warm => self.lbs_state.as_ref(),
                     IkStart::Cold => None,
+                };
+                // The PanoMan sequence's warm IK tolerance, so both methods share the IK.
+                let base = ik_config_for_noise(self.request.keypoint_sigma);
+                let ikc = match (warm, self.sequence.warm_ik_tolerance) {
+                    (Some(_), Some(tolerance)) => IkConfig { tolerance, ..base },
+                    _ => base,
                 };
                 let q = self.request.quality();
                 let (r, attempts) = self.fitter.lbs(&c, &ikc, &q, warm)?;

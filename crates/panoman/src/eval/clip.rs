@@ -64,11 +64,17 @@ pub(crate) fn run(
             ..Default::default()
         };
         let (ikr, fit) = seq.fit_next(&b.rig, &b.ik, &mut b.fitter, &c)?;
+        // The LBS baseline's warm frames stop at the PanoMan sequence's warm IK tolerance.
+        let tolerance = match (&prev_lbs, seq.warm_ik_tolerance) {
+            (Some(_), Some(t)) => t,
+            _ => b.ikc.tolerance,
+        };
         let lbs = ik_fit(
             &b.ik,
             &c,
             &IkConfig {
                 initial_state: prev_lbs.clone(),
+                tolerance,
                 ..b.ikc.clone()
             },
         )?;
