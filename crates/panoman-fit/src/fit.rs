@@ -67,23 +67,9 @@ pub struct FitOptions {
     /// LM iterations of the torso stage (Total Capture's first stage; the IK initializer
     /// already stages torso → body → hands, so the default skips it). Default 0.
     pub torso_iterations: usize,
-    /// LM iterations of each V-step of the keypoint stage (the budget of accepted steps, see
-    /// `step_retries`). Default 1: from exact keypoints every further step moves the fit
-    /// toward the guidance pose, whose representation error then costs accuracy (the eval's
-    /// 10 held-out people, default model: 1 / 2 / 3 / 4 iterations → mean vertex error
-    /// 7.346 / 7.355 / 7.371 / 7.402 mm, the LBS initializer 7.34 mm; a keypoints + scan fit
-    /// 2.06 mm with 1 against 2.12 mm with 4), and each costs a linear solve.
+    /// LM iterations of each V-step in the keypoint and ICP stages (the budget of accepted
+    /// steps, see `step_retries`). Default 4.
     pub step_iterations: usize,
-    /// LM iterations of each V-step of the ICP stages, where the scan is evidence the
-    /// guidance pose lacks. Default 4.
-    pub icp_step_iterations: usize,
-    /// LM iterations of the keypoint stage's V-steps when motion data constrains β_B
-    /// ([`Constraints::motion`] with `motion_weight` > 0): the guidance pose then carries the
-    /// motion, which can be far from the keypoints (one step leaves a 30 mm body keypoint
-    /// residual on the CLI test's person). More than one iteration are factored, not solved
-    /// by PCG (μ falls ×1/3 per accepted step, §3.5 of docs/design/shell-fit.md). Default 4;
-    /// [`warm_fit_options`] 1.
-    pub motion_step_iterations: usize,
     /// Rejected LM steps of a V-step retried with a larger damping before they use up a unit
     /// of `step_iterations` ([`ShellOptions::retry_rejected`]): a one-iteration warm V-step
     /// then ends with an accepted step instead of silently doing nothing. Default 8 (μ grows
@@ -141,17 +127,10 @@ pub struct FitOptions {
     /// Thresholds of the quality check of the initializer and of the fit
     /// ([`crate::quality`]).
     pub quality: QualityOptions,
-    /// V-steps of the torso and keypoint stages solved inexactly by preconditioned conjugate
-    /// gradients instead of a sparse factorization ([`panoman_mesh::shell::PcgOptions`];
-    /// falls back to the factorization when PCG misses its tolerance). Default
-    /// `Some(PcgOptions::default())`: their damping starts at `mu_init` = 1, where the
-    /// Marquardt-scaled system is well conditioned (docs/design/shell-fit.md §3.5; cold fits
-    /// of the eval's people: 14–19 products, the same errors as the factorization to 10⁻⁴ mm).
+    /// V-steps solved inexactly by preconditioned conjugate gradients instead of a sparse
+    /// factorization ([`panoman_mesh::shell::PcgOptions`]; falls back to the factorization
+    /// when PCG misses its tolerance). Default `None`; [`warm_fit_options`] sets it.
     pub pcg: Option<PcgOptions>,
-    /// The same for the V-steps of the ICP stages, whose damping starts at `icp_mu_init`
-    /// (1e−2: ill-conditioned for block-Jacobi PCG, the factorization is faster). Default
-    /// `None`; [`warm_fit_options`] sets it.
-    pub icp_pcg: Option<PcgOptions>,
     /// Fixed-point iterations `β ← LS(RLA − R(β))` of each β-step with the correction MLP
     /// (each one MLP evaluation and one projection). Default 2.
     pub correction_iterations: usize,
@@ -169,9 +148,7 @@ impl Default for FitOptions {
             handle_weight: 10.0,
             icp_weight: 1.0,
             torso_iterations: 0,
-            step_iterations: 1,
-            icp_step_iterations: 4,
-            motion_step_iterations: 4,
+            step_iterations: 4,
             step_retries: 8,
             sweeps: 1,
             icp_passes: 2,
@@ -188,8 +165,7 @@ impl Default for FitOptions {
             placement: Placement::Aligned,
             motion_weight: 1.0,
             quality: QualityOptions::default(),
-            pcg: Some(PcgOptions::default()),
-            icp_pcg: None,
+            pcg: None,
             correction_iterations: 2,
             correction_warm_start: false,
         }
@@ -211,11 +187,8 @@ impl Default for FitOptions {
 pub fn warm_fit_options() -> FitOptions {
     FitOptions {
         step_iterations: 1,
-        icp_step_iterations: 1,
-        motion_step_iterations: 1,
         placement: Placement::Propagated,
         pcg: Some(PcgOptions::default()),
-        icp_pcg: Some(PcgOptions::default()),
         correction_iterations: 1,
         correction_warm_start: true,
         ..FitOptions::default()
@@ -657,7 +630,6 @@ impl Fitter {
         x: &mut [V3],
         iterations: usize,
         mu: f64,
-        pcg: Option<PcgOptions>,
         opts: &FitOptions,
     ) -> Result<ShellReport> {
         let r = self.solver.solve(
@@ -668,7 +640,7 @@ impl Fitter {
                 retry_rejected: opts.step_retries,
                 mu_init: mu,
                 parallel_factor: opts.parallel_factor,
-                pcg,
+                pcg: opts.pcg,
                 ..Default::default()
             },
         )?;
@@ -838,14 +810,7 @@ impl Fitter {
             let t = Instant::now();
             let mut targets = self.guidance(&params, &rg, &x, opts)?;
             self.constraint_targets(&mut targets, &torso, c, &init.posed, opts);
-            let rep = self.v_step(
-                &targets,
-                &mut x,
-                opts.torso_iterations,
-                opts.mu_init,
-                opts.pcg,
-                opts,
-            )?;
+            let rep = self.v_step(&targets, &mut x, opts.torso_iterations, opts.mu_init, opts)?;
             stages.push(StageReport::of_solve("torso", t, &rep, None));
         }
         // Stage 2: all keypoints, alternating V- and β-steps.
@@ -902,13 +867,7 @@ impl Fitter {
             }
             let mut targets = self.guidance(params, rg, x, opts)?;
             self.constraint_targets(&mut targets, pass.kp, c, &pass.init.posed, opts);
-            let (iterations, pcg) = if self.motion_beta.is_some() && opts.motion_weight > 0.0 {
-                let n = opts.motion_step_iterations;
-                (n, if n > 1 { None } else { opts.pcg })
-            } else {
-                (opts.step_iterations, opts.pcg)
-            };
-            let rep = self.v_step(&targets, x, iterations, opts.mu_init, pcg, opts)?;
+            let rep = self.v_step(&targets, x, opts.step_iterations, opts.mu_init, opts)?;
             its += rep.iterations;
             acc += rep.accepted;
             if sweep == 0 {
@@ -956,14 +915,7 @@ impl Fitter {
                 &opts.icp,
             );
             targets.points.extend(cons);
-            let rep = self.v_step(
-                &targets,
-                x,
-                opts.icp_step_iterations,
-                opts.icp_mu_init,
-                opts.icp_pcg,
-                opts,
-            )?;
+            let rep = self.v_step(&targets, x, opts.step_iterations, opts.icp_mu_init, opts)?;
             stages.push(StageReport::of_solve(
                 format!("icp{}", i + 1),
                 t,
