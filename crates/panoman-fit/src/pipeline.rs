@@ -629,10 +629,10 @@ pub struct Sequence {
     /// motion cannot drift. Default 30; 0 never.
     pub reanchor_every: usize,
     /// Stopping tolerance of the IK of warm-started frames ([`IkConfig::tolerance`] there;
-    /// `None`: the cold frames' `ik.tolerance`). Default 1e−4: on the eval's 72-frame clip a
-    /// warm IK then takes 7 LM iterations instead of 9 (1e−9) for the same tracking error
-    /// (docs/design/shell-fit.md §5). The LBS baseline's trackers use the same value
-    /// ([`WARM_IK_TOLERANCE`]).
+    /// `None`: the cold frames' `ik.tolerance`). Default [`WARM_IK_TOLERANCE`] (1e−4): on the
+    /// eval's 72-frame clip a warm IK then takes 7 LM iterations instead of 9 (1e−9), tracking
+    /// error 3.2674 → 3.2620 mm (docs/design/shell-fit.md §5). The LBS baseline's trackers
+    /// take theirs from [`Sequence::ik_config`].
     pub warm_ik_tolerance: Option<f64>,
     frames: usize,
     state: Option<IkState>,
@@ -685,6 +685,19 @@ impl Sequence {
         self.previous = s.previous;
     }
 
+    /// `base` with [`Sequence::warm_ik_tolerance`] as its tolerance when the frame is warm
+    /// started: the IK settings of this sequence's frames, which an LBS tracker of the same
+    /// targets uses too so that both methods share the IK.
+    pub fn ik_config(&self, base: &IkConfig, warm: bool) -> IkConfig {
+        match (warm, self.warm_ik_tolerance) {
+            (true, Some(tolerance)) => IkConfig {
+                tolerance,
+                ..base.clone()
+            },
+            _ => base.clone(),
+        }
+    }
+
     /// Fits the next frame (`c.previous` is set from the sequence) and records it.
     pub fn fit_next(
         &mut self,
@@ -711,13 +724,7 @@ impl Sequence {
                 ..self.warm.clone()
             },
         };
-        let ik_cfg = match (warm, self.warm_ik_tolerance) {
-            (Some(_), Some(tolerance)) => IkConfig {
-                tolerance,
-                ..self.ik.clone()
-            },
-            _ => self.ik.clone(),
-        };
+        let ik_cfg = self.ik_config(&self.ik, warm.is_some());
         let (r, fit) = fit_frame(rig, ik, fitter, &c, &ik_cfg, &opts, warm)?;
         self.frames += 1;
         self.state = Some(r.state.clone());

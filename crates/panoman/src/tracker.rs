@@ -218,12 +218,11 @@ impl Tracker {
                     IkStart::Warm => self.lbs_state.as_ref(),
                     IkStart::Cold => None,
                 };
-                // The PanoMan sequence's warm IK tolerance, so both methods share the IK.
-                let base = ik_config_for_noise(self.request.keypoint_sigma);
-                let ikc = match (warm, self.sequence.warm_ik_tolerance) {
-                    (Some(_), Some(tolerance)) => IkConfig { tolerance, ..base },
-                    _ => base,
-                };
+                // The PanoMan sequence's IK settings, so both methods share the IK.
+                let ikc = self.sequence.ik_config(
+                    &ik_config_for_noise(self.request.keypoint_sigma),
+                    warm.is_some(),
+                );
                 let q = self.request.quality();
                 let (r, attempts) = self.fitter.lbs(&c, &ikc, &q, warm)?;
                 self.lbs_state = Some(r.state.clone());

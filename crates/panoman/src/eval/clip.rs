@@ -64,18 +64,13 @@ pub(crate) fn run(
             ..Default::default()
         };
         let (ikr, fit) = seq.fit_next(&b.rig, &b.ik, &mut b.fitter, &c)?;
-        // The LBS baseline's warm frames stop at the PanoMan sequence's warm IK tolerance.
-        let tolerance = match (&prev_lbs, seq.warm_ik_tolerance) {
-            (Some(_), Some(t)) => t,
-            _ => b.ikc.tolerance,
-        };
+        // The LBS baseline's frames use the PanoMan sequence's IK settings.
         let lbs = ik_fit(
             &b.ik,
             &c,
             &IkConfig {
                 initial_state: prev_lbs.clone(),
-                tolerance,
-                ..b.ikc.clone()
+                ..seq.ik_config(&b.ikc, prev_lbs.is_some())
             },
         )?;
         let secs = ikr.seconds + fit.report.seconds;
