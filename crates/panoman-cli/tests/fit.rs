@@ -117,6 +117,72 @@ fn held_out_people_from_exact_keypoints() {
     assert!(e_pm < 0.025, "panoman mean error {:.2} mm", e_pm * 1e3);
 }
 
+/// The cold keypoint stage's first step ([`FitOptions::one_step_tolerance`]): with a loose
+/// tolerance the stage stops after one LM step; with a tight one, or none, it takes its
+/// factored steps; the default stops exactly when every group's residual after that one step
+/// is within 1 mm, and otherwise gives the tight tolerance's fit.
+#[test]
+fn cold_keypoint_stage_stops_after_one_step_only_within_its_tolerance() {
+    let (_, data, model_path) = trained();
+    let (model, rig) = model_and_rig(model_path);
+    let ik = rig.ik_solver().unwrap();
+    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
+    let (truth, _) = &held_out(data, 1)[0];
+    let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
+    let c = Constraints {
+        keypoints: kp.clone(),
+        ..Default::default()
+    };
+    let mut run = |tol: Option<f64>| {
+        let opts = FitOptions {
+            one_step_tolerance: tol,
+            ..FitOptions::default()
+        };
+        let (_, fit) =
+            fit_frame(&rig, &ik, &mut fitter, &c, &Default::default(), &opts, None).unwrap();
+        let stage = fit
+            .report
+            .stages
+            .iter()
+            .find(|s| s.name == "keypoints")
+            .expect("keypoint stage")
+            .clone();
+        (stage, fit)
+    };
+    let (loose, fit_loose) = run(Some(1.0));
+    let (tight, fit_tight) = run(Some(1e-9));
+    let (factored, _) = run(None);
+    let (default, fit_default) = run(FitOptions::default().one_step_tolerance);
+    let steps = FitOptions::default().step_iterations;
+    assert_eq!(loose.iterations, 1, "{loose:?}");
+    assert!(loose.energy_end <= loose.energy_start, "{loose:?}");
+    // One PCG step, then the remaining factored ones (rejected ones counted too).
+    assert!(tight.iterations >= steps.min(2), "{tight:?}");
+    assert!(factored.iterations >= steps.min(2), "{factored:?}");
+    assert!(tight.energy_end <= tight.energy_start, "{tight:?}");
+    let after_one = keypoint_residuals(&model, &kp, &fit_loose.vertices);
+    let within = after_one.values().all(|g| g.mean_mm <= 1.0);
+    let same = |a: &[V3], b: &[V3]| a.iter().zip(b).all(|(p, q)| norm(sub(*p, *q)) < 1e-9);
+    if within {
+        assert_eq!(default.iterations, 1);
+        assert!(same(&fit_default.vertices, &fit_loose.vertices));
+    } else {
+        assert_eq!(default.iterations, tight.iterations);
+        assert!(same(&fit_default.vertices, &fit_tight.vertices));
+    }
+    println!(
+        "after one step {:?}; stage iterations loose {} tight {} factored {} default {}",
+        after_one
+            .iter()
+            .map(|(k, g)| format!("{k} {:.2}", g.mean_mm))
+            .collect::<Vec<_>>(),
+        loose.iterations,
+        tight.iterations,
+        factored.iterations,
+        default.iterations
+    );
+}
+
 /// A sequence whose second frame is the first one moved rigidly: the warm-started fit follows
 /// the motion (fit₁ ≈ M fit₀), and the propagated placement is the first frame's placement
 /// composed with M (a composition in the wrong order or a transposed rotation fails here); a

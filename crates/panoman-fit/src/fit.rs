@@ -138,6 +138,19 @@ pub struct FitOptions {
     /// previous frame's) instead of the uncorrected projection. Default false;
     /// [`warm_fit_options`] sets it with one iteration.
     pub correction_warm_start: bool,
+    /// Tolerance (m) of the cold keypoint stage's first step. A fit without a previous
+    /// frame, motion data or [`FitOptions::pcg`], whose keypoint stage takes more than one LM
+    /// iteration in one sweep, first takes one LM step solved by PCG
+    /// ([`PcgOptions::default`], μ = [`FitOptions::mu_init`]) and stops there when every
+    /// keypoint group's mean residual (body, face, each hand; [`group_residuals`]) is within
+    /// this tolerance; otherwise it goes on with `step_iterations − 1` factored steps. From
+    /// exact keypoints one step reaches them to a few tenths of a millimetre on the default
+    /// model, and each further step moves the fit toward the guidance pose and its
+    /// representation error (docs/design/shell-fit.md §3.6); from noisy keypoints, or with a
+    /// model whose guidance pose is far from them, the residual stays above the tolerance and
+    /// the stage takes all its steps. `None`: always the factored steps. Default
+    /// `Some(1e-3)` (1 mm).
+    pub one_step_tolerance: Option<f64>,
 }
 
 impl Default for FitOptions {
@@ -168,6 +181,7 @@ impl Default for FitOptions {
             pcg: None,
             correction_iterations: 2,
             correction_warm_start: false,
+            one_step_tolerance: Some(1e-3),
         }
     }
 }
@@ -849,7 +863,8 @@ impl Fitter {
     }
 
     /// Stage 2 of [`Fitter::fit`]: `opts.sweeps` sweeps of a V-step on all keypoints, each
-    /// after the first preceded by a β-step.
+    /// after the first preceded by a β-step; a cold fit may stop after one step
+    /// ([`FitOptions::one_step_tolerance`]).
     fn keypoint_stage(
         &mut self,
         pass: &StagePass<'_>,
@@ -861,19 +876,46 @@ impl Fitter {
         let mut its = 0;
         let mut acc = 0;
         let (mut e0, mut e1) = (0.0, 0.0);
+        let one_step = opts.one_step_tolerance.filter(|_| {
+            c.previous.is_none()
+                && c.motion.is_none()
+                && opts.pcg.is_none()
+                && opts.sweeps <= 1
+                && opts.step_iterations > 1
+                && !c.keypoints.points.is_empty()
+        });
         for sweep in 0..opts.sweeps.max(1) {
             if sweep > 0 {
                 self.beta_step(x, rg, params, c, opts)?;
             }
             let mut targets = self.guidance(params, rg, x, opts)?;
             self.constraint_targets(&mut targets, pass.kp, c, &pass.init.posed, opts);
-            let rep = self.v_step(&targets, x, opts.step_iterations, opts.mu_init, opts)?;
-            its += rep.iterations;
-            acc += rep.accepted;
-            if sweep == 0 {
-                e0 = rep.energies[0];
+            let mut iterations = opts.step_iterations;
+            let mut energies = Vec::new();
+            if let Some(tol) = one_step {
+                let quick = FitOptions {
+                    pcg: Some(PcgOptions::default()),
+                    ..opts.clone()
+                };
+                let rep = self.v_step(&targets, x, 1, opts.mu_init, &quick)?;
+                its += rep.iterations;
+                acc += rep.accepted;
+                energies.extend_from_slice(&rep.energies);
+                let within = keypoint_residuals(&self.model, &c.keypoints, x)
+                    .values()
+                    .all(|g| g.mean_mm <= 1e3 * tol);
+                iterations = if within { 0 } else { iterations - 1 };
             }
-            e1 = *rep.energies.last().unwrap_or(&0.0);
+            if iterations > 0 {
+                let rep = self.v_step(&targets, x, iterations, opts.mu_init, opts)?;
+                its += rep.iterations;
+                acc += rep.accepted;
+                energies.extend_from_slice(&rep.energies);
+            }
+            if sweep == 0 {
+                e0 = energies[0];
+            }
+            e1 = *energies.last().unwrap_or(&0.0);
         }
         Ok(StageReport {
             name: "keypoints".into(),
