@@ -305,6 +305,8 @@ fn run_fits(
         let mut tracker = Tracker::with_fitter(f, FitRequest::default(), IkStart::Warm);
         let (mut t, mut errs) = (Vec::new(), Vec::new());
         let mut first_ms = f64::NAN;
+        // Per warm frame: the IK, each shell stage and the rest (output assembly), in ms.
+        let mut stage_ms: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
         for (i, x) in truths.iter().enumerate() {
             let tg = Targets::from_keypoints(&model.keypoints(x)?);
             tg.keypoints
@@ -316,10 +318,21 @@ fn run_fits(
                 first_ms = ms;
             } else {
                 t.push(ms);
+                let r = &out.report;
+                let mut add = |k: &str, v: f64| stage_ms.entry(k.into()).or_default().push(v);
+                add("ik", 1e3 * r.ik.seconds);
+                for st in &r.stages {
+                    add(&st.name, 1e3 * st.seconds);
+                }
+                add("other", ms - 1e3 * (r.ik.seconds + r.fit_seconds));
             }
             errs.push(mean_error_mm(&out.vertices, x));
         }
         let e = mean(&errs);
+        let stages: serde_json::Map<String, Value> = stage_ms
+            .into_iter()
+            .map(|(k, v)| (k, json!(crate::util::median_min_max(&v).0)))
+            .collect();
         rep.report_with(
             "track_warm",
             &t,
@@ -328,7 +341,8 @@ fn run_fits(
                 truths.len(),
                 a.seed
             ),
-            obj(json!({"error_mm": e, "frames": truths.len(), "first_frame_ms": first_ms, "seed": a.seed})),
+            obj(json!({"error_mm": e, "frames": truths.len(), "first_frame_ms": first_ms,
+                "seed": a.seed, "stages_median_ms": stages})),
         );
         fitter = Some(Fitter::new(model)?);
     }
