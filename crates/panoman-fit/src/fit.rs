@@ -401,6 +401,9 @@ pub struct Fitter {
     rest_cache: Option<(Vec<f64>, RestGeometry)>,
     /// β_θ = (β_LB, β_AB) of the current fit's motion data, if any.
     motion_beta: Option<(Vec<f64>, Vec<f64>)>,
+    /// The last correction residual `R(β_B)` with its input (the body β as f32): a warm
+    /// frame's final β-step asks for the residual of the β its guidance was made of.
+    correction_memo: Option<(Vec<f32>, Vec<f32>)>,
 }
 
 impl Fitter {
@@ -452,6 +455,7 @@ impl Fitter {
             torso_weights,
             rest_cache: None,
             motion_beta: None,
+            correction_memo: None,
         })
     }
 
@@ -618,15 +622,35 @@ impl Fitter {
         }
     }
 
+    /// The correction residual `R(β_B)` of `params` ([`PanoManModel::correction_residual`]),
+    /// reused when the body β is the last call's.
+    fn correction(&mut self, params: &Params) -> Option<Vec<f32>> {
+        self.model.correction.as_ref()?;
+        let x = self.model.body_beta_f32(params);
+        if let Some((input, r)) = &self.correction_memo
+            && *input == x
+        {
+            return Some(r.clone());
+        }
+        let r = self.model.correction_residual(params)?;
+        self.correction_memo = Some((x, r.clone()));
+        Some(r)
+    }
+
     /// Shell targets of the guidance pose `B_P(α, β)` on the rest shape `B_S(α)`.
     fn guidance(
-        &self,
+        &mut self,
         params: &Params,
         rg: &RestGeometry,
         x: &[V3],
         opts: &FitOptions,
     ) -> Result<ShellTargets> {
-        let rla = self.model.rla(params, opts.correction);
+        let r = if opts.correction {
+            self.correction(params)
+        } else {
+            None
+        };
+        let rla = self.model.rla_with_residual(params, r.as_deref());
         Ok(ShellTargets::from_rla(
             self.ev.topology(),
             rg,
@@ -663,7 +687,7 @@ impl Fitter {
 
     /// β-step: least-squares β of V's RL/RA w.r.t. `B_S(α)`; fixed blocks keep their values.
     fn beta_step(
-        &self,
+        &mut self,
         x: &[V3],
         rg: &RestGeometry,
         params: &mut Params,
@@ -693,10 +717,7 @@ impl Fitter {
         }
         if opts.correction && self.model.correction.is_some() {
             for _ in 0..opts.correction_iterations {
-                let r = self
-                    .model
-                    .correction_residual(params)
-                    .expect("has correction");
+                let r = self.correction(params).expect("has correction");
                 self.ev.encode_beta(&rla, params, Some(&r))?;
             }
         }

@@ -337,6 +337,21 @@ impl PanoManModel {
 
     /// RL and RA of the parameters (Eq. 3–5), with or without the correction MLP.
     pub fn rla(&self, params: &Params, correction: bool) -> Rla {
+        let r = if correction {
+            self.correction_residual(params)
+        } else {
+            None
+        };
+        self.rla_with_residual(params, r.as_deref())
+    }
+
+    /// [`PanoManModel::rla`] with the correction residual given: `r` is
+    /// [`PanoManModel::correction_residual`] of the same β (`None`: uncorrected), e.g. one a
+    /// caller already has for these parameters.
+    ///
+    /// # Panics
+    /// If `r` is not of the body columns' length (RL then RA).
+    pub fn rla_with_residual(&self, params: &Params, r: Option<&[f32]>) -> Rla {
         let ne = self.n_edges();
         let mut rla = Rla::zeros(ne);
         for (b, block) in self.blocks.iter().enumerate() {
@@ -358,10 +373,11 @@ impl PanoManModel {
                 }
             }
         }
-        if correction && let Some(r) = self.correction_residual(params) {
+        if let Some(r) = r {
             let bl = &self.blocks[0];
             let ba = &self.blocks[3];
             let n1 = bl.columns.len();
+            assert_eq!(r.len(), n1 + ba.columns.len(), "correction residual length");
             for (j, &e) in bl.columns.iter().enumerate() {
                 rla.rl[e as usize] += r[j] as f64;
             }
@@ -977,21 +993,31 @@ impl Evaluator {
     /// Least-squares β of an RLA (optionally minus a body-column residual `r` laid out as
     /// [`PanoManModel::correction_residual`]), written into `params.beta`.
     pub fn encode_beta(&self, x: &Rla, params: &mut Params, r: Option<&[f32]>) -> Result<()> {
+        use rayon::prelude::*;
         let m = &*self.model;
-        for (q, enc) in self.encoders.iter().enumerate() {
-            let data = if q == 0 { &x.rl } else { &x.ra };
-            let mut target = data.clone();
-            if let Some(r) = r {
-                let (blk, off) = if q == 0 {
-                    (&m.blocks[0], 0)
-                } else {
-                    (&m.blocks[3], m.blocks[0].columns.len())
-                };
-                for (j, &e) in blk.columns.iter().enumerate() {
-                    target[e as usize] -= r[off + j] as f64;
+        // The RL and RA encoders are independent: one rayon task each.
+        let betas = self
+            .encoders
+            .par_iter()
+            .enumerate()
+            .map(|(q, enc)| {
+                let data = if q == 0 { &x.rl } else { &x.ra };
+                let mut target = data.clone();
+                if let Some(r) = r {
+                    let (blk, off) = if q == 0 {
+                        (&m.blocks[0], 0)
+                    } else {
+                        (&m.blocks[3], m.blocks[0].columns.len())
+                    };
+                    for (j, &e) in blk.columns.iter().enumerate() {
+                        target[e as usize] -= r[off + j] as f64;
+                    }
                 }
-            }
-            let beta = enc.solve(m, &target)?;
+                enc.solve(m, &target)
+            })
+            .collect::<Vec<_>>();
+        for (enc, beta) in self.encoders.iter().zip(betas) {
+            let beta = beta?;
             for (i, &b) in enc.blocks.iter().enumerate() {
                 params.beta.insert(
                     m.blocks[b].name.clone(),
