@@ -41,6 +41,10 @@ use std::time::Instant;
 /// Edges per rayon task in the residual/Jacobian evaluation.
 const EDGE_CHUNK: usize = 2048;
 
+/// Fixed ranges of vertex blocks the normal-matrix product is split into (one rayon task
+/// each; a fixed count keeps the sum order, and so the result, independent of the threads).
+pub const PRODUCT_PARTS: usize = 4;
+
 /// Smallest damping factor μ (keeps the rigid null space of JᵀJ damped, docs/design/shell-fit.md §8.3).
 const MU_MIN: f64 = 1e-10;
 
@@ -916,15 +920,66 @@ impl ShellSolver {
     }
 
     /// `out = JᵀJ·v` with the assembled matrix of the last linearisation (symmetric product
-    /// from the stored lower triangle).
+    /// from the stored lower triangle). The vertex blocks are split into
+    /// [`PRODUCT_PARTS`] fixed ranges, multiplied in parallel into separate buffers and summed
+    /// in order, so the result does not depend on the thread count.
     pub fn normal_matrix_mul(&self, v: &[f64], out: &mut [f64]) {
+        let mut parts = Vec::new();
+        self.normal_matrix_mul_into(v, out, &mut parts);
+    }
+
+    /// [`ShellSolver::normal_matrix_mul`] with the buffers of parts 1.. in `parts` (resized).
+    fn normal_matrix_mul_into(&self, v: &[f64], out: &mut [f64], parts: &mut Vec<Vec<f64>>) {
         assert!(v.len() == self.n && out.len() == self.n && self.linearized);
-        out.fill(0.0);
+        let nb = self.n / 3;
+        parts.resize_with(PRODUCT_PARTS - 1, Vec::new);
+        let mut bufs: Vec<&mut [f64]> = Vec::with_capacity(PRODUCT_PARTS);
+        bufs.push(out);
+        for p in parts.iter_mut() {
+            p.resize(self.n, 0.0);
+            bufs.push(p);
+        }
+        bufs.par_iter_mut().enumerate().for_each(|(part, buf)| {
+            buf.fill(0.0);
+            let range = part * nb / PRODUCT_PARTS..(part + 1) * nb / PRODUCT_PARTS;
+            self.lower_product(v, buf, range);
+        });
+        let (out, rest) = bufs.split_first_mut().expect("PRODUCT_PARTS >= 1");
+        out.par_chunks_mut(4096).enumerate().for_each(|(c, o)| {
+            let base = c * 4096;
+            for p in rest.iter() {
+                for (x, y) in o.iter_mut().zip(&p[base..]) {
+                    *x += y;
+                }
+            }
+        });
+        let out: &mut [f64] = out;
+        if let Some(ds) = &self.dense {
+            for (k, rows) in ds.rows.iter().enumerate() {
+                let w = ds.weight[k];
+                let mut p = [0.0; 3];
+                for &(u, b) in rows {
+                    for c in 0..3 {
+                        p[c] += b * v[3 * u as usize + c];
+                    }
+                }
+                for &(u, b) in rows {
+                    for c in 0..3 {
+                        out[3 * u as usize + c] += w * b * p[c];
+                    }
+                }
+            }
+        }
+    }
+
+    /// The contribution of vertex blocks `range` (columns) of the stored lower triangle to
+    /// `out += JᵀJ·v` (both triangles).
+    fn lower_product(&self, v: &[f64], out: &mut [f64], range: std::ops::Range<usize>) {
         let cp = self.pattern.col_ptr();
         let vals = &self.jtj;
         // By 3×3 vertex blocks (the pattern's layout, `build`): column 3b+c holds the lower
         // diagonal block from row 3b+c on, then 3 rows per upper neighbour a > b.
-        for b in 0..self.n / 3 {
+        for b in range {
             let vb = [v[3 * b], v[3 * b + 1], v[3 * b + 2]];
             let base = [cp[3 * b], cp[3 * b + 1], cp[3 * b + 2]];
             let d = [
@@ -956,22 +1011,6 @@ impl ShellSolver {
             }
             for c in 0..3 {
                 out[3 * b + c] += yb[c];
-            }
-        }
-        if let Some(ds) = &self.dense {
-            for (k, rows) in ds.rows.iter().enumerate() {
-                let w = ds.weight[k];
-                let mut p = [0.0; 3];
-                for &(u, b) in rows {
-                    for c in 0..3 {
-                        p[c] += b * v[3 * u as usize + c];
-                    }
-                }
-                for &(u, b) in rows {
-                    for c in 0..3 {
-                        out[3 * u as usize + c] += w * b * p[c];
-                    }
-                }
             }
         }
     }
@@ -1122,7 +1161,14 @@ impl ShellSolver {
         let n = self.n;
         let cp = self.pattern.col_ptr();
         ws.resize(n);
-        let PcgScratch { inv, r, z, p, q } = ws;
+        let PcgScratch {
+            inv,
+            r,
+            z,
+            p,
+            q,
+            parts,
+        } = ws;
         // Per vertex: the damped 3×3 diagonal block (stored first in its three columns),
         // inverted in place below.
         for (v, b) in inv.iter_mut().enumerate() {
@@ -1177,7 +1223,7 @@ impl ShellSolver {
         p.copy_from_slice(z);
         let mut rz: f64 = r.iter().zip(z.iter()).map(|(a, b)| a * b).sum();
         for it in 1..=opts.max_iterations {
-            self.normal_matrix_mul(p, q);
+            self.normal_matrix_mul_into(p, q, parts);
             for c in 0..n {
                 q[c] += mu * self.diag_scale[c] * p[c];
             }
@@ -1538,6 +1584,8 @@ struct PcgScratch {
     z: Vec<f64>,
     p: Vec<f64>,
     q: Vec<f64>,
+    /// Buffers of the normal-matrix product's parts 1.. ([`PRODUCT_PARTS`]).
+    parts: Vec<Vec<f64>>,
 }
 
 impl PcgScratch {
@@ -1576,22 +1624,33 @@ fn sym3_inverse(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
 /// Unweighted rms of `ℓ_e/ℓ*_e − 1` over all edges and of `wrap(φ_e − φ*_e)` over interior
 /// edges of `x`.
 pub fn residual_rms(topo: &Topology, targets: &ShellTargets, x: &[V3]) -> (f64, f64) {
-    let (mut sl, mut sa, mut na) = (0.0, 0.0, 0usize);
-    for e in 0..topo.n_edges() {
-        let [i, j] = topo.edges[e];
-        let (xi, xj) = (x[i as usize], x[j as usize]);
-        let rl = norm(sub(xj, xi)) / targets.lengths[e] - 1.0;
-        sl += rl * rl;
-        let [k, l] = topo.edge_opposite[e];
-        if l != NONE {
-            let phi = dihedral_angle(xi, xj, x[k as usize], x[l as usize]);
-            let ra = wrap_angle(phi - targets.angles[e]);
-            sa += ra * ra;
-            na += 1;
-        }
-    }
+    // Fixed chunks in parallel, their sums added in order: deterministic.
+    let ne = topo.n_edges();
+    let sums: Vec<(f64, f64, usize)> = (0..ne.div_ceil(EDGE_CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let (mut sl, mut sa, mut na) = (0.0, 0.0, 0usize);
+            for e in c * EDGE_CHUNK..((c + 1) * EDGE_CHUNK).min(ne) {
+                let [i, j] = topo.edges[e];
+                let (xi, xj) = (x[i as usize], x[j as usize]);
+                let rl = norm(sub(xj, xi)) / targets.lengths[e] - 1.0;
+                sl += rl * rl;
+                let [k, l] = topo.edge_opposite[e];
+                if l != NONE {
+                    let phi = dihedral_angle(xi, xj, x[k as usize], x[l as usize]);
+                    let ra = wrap_angle(phi - targets.angles[e]);
+                    sa += ra * ra;
+                    na += 1;
+                }
+            }
+            (sl, sa, na)
+        })
+        .collect();
+    let (sl, sa, na) = sums
+        .iter()
+        .fold((0.0, 0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
     (
-        (sl / topo.n_edges().max(1) as f64).sqrt(),
+        (sl / ne.max(1) as f64).sqrt(),
         (sa / na.max(1) as f64).sqrt(),
     )
 }
