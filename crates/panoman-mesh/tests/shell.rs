@@ -252,6 +252,22 @@ fn gradient_and_gauss_newton_matrix_match_finite_differences() {
             (vhv - jv2).abs() < 1e-12 * jv2,
             "vᵀJᵀJv {vhv} vs |Jv|² {jv2}"
         );
+        // The product is split into fixed parts summed in order: bit-identical whatever the
+        // number of threads.
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let mut hv_t = vec![0.0; n];
+            pool.install(|| solver.normal_matrix_mul(&v, &mut hv_t));
+            assert!(
+                hv_t.iter()
+                    .zip(&hv)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "JᵀJ·v with {threads} threads differs from the default pool's"
+            );
+        }
         let mut rng = Rng(12);
         for _ in 0..20 {
             let w: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
