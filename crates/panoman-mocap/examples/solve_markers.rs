@@ -44,6 +44,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 correction: env("CORRECTION", 1.0) > 0.0,
                 temporal_vertex_weight: env("TEMPORAL", 0.01),
                 handle_weight: env("HANDLE", 10.0),
+                mu_init: env("MU", 1.0),
+                step_iterations: env("STEPS", 1.0) as usize,
+                c_b: env("CB", 1.0),
                 ..panoman_fit::fit::warm_fit_options()
             },
             ..SolveOptions::default()
