@@ -1,6 +1,11 @@
 //! Solves a marker capture and prints the report's figures.
 //!
 //! `cargo run --release -p panoman-mocap --example solve_markers -- MODEL CAPTURE [lbs|panoman] [A:B:step] [OUT]`
+//!
+//! Environment overrides for experiments (unset: the library's defaults): `VSK`, `ROUNDS`,
+//! `PRIOR`, `FOLDS`, `POSE_PRIOR`, `ITERS`, `STEP`, `RECAL`, `LAMBDA`, `CAL_FRAMES`, `SIGMA`,
+//! `TRACK_ROUNDS`, `GLITCH`, and of the warm shell fit `CORRECTION`, `TEMPORAL`, `HANDLE`,
+//! `MU` (μ₀), `STEPS` (LM iterations per V-step), `CB` (bending weight).
 use std::path::PathBuf;
 
 use panoman_mocap::solve::SolveOptions;
@@ -20,6 +25,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Some("lbs") => panoman::Method::Lbs,
         _ => panoman::Method::PanoMan,
     };
+    let warm = panoman_fit::fit::warm_fit_options();
     let req = SolveRequest {
         markers: PathBuf::from(&a[2]),
         vsk: std::env::var_os("VSK").map(PathBuf::from),
@@ -41,13 +47,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             track_rounds: env("TRACK_ROUNDS", 2.0) as usize,
             glitch_m: env("GLITCH", 0.04),
             warm_fit: panoman_fit::FitOptions {
-                correction: env("CORRECTION", 1.0) > 0.0,
-                temporal_vertex_weight: env("TEMPORAL", 0.01),
-                handle_weight: env("HANDLE", 10.0),
-                mu_init: env("MU", 1.0),
-                step_iterations: env("STEPS", 1.0) as usize,
-                c_b: env("CB", 1.0),
-                ..panoman_fit::fit::warm_fit_options()
+                correction: env("CORRECTION", f64::from(u8::from(warm.correction))) > 0.0,
+                temporal_vertex_weight: env("TEMPORAL", warm.temporal_vertex_weight),
+                handle_weight: env("HANDLE", warm.handle_weight),
+                mu_init: env("MU", warm.mu_init),
+                step_iterations: env("STEPS", warm.step_iterations as f64) as usize,
+                c_b: env("CB", warm.c_b),
+                ..warm
             },
             ..SolveOptions::default()
         },
