@@ -70,6 +70,58 @@ impl PhenGrid {
         }
         out
     }
+
+    /// [`PhenGrid::interp`] of several derivatives at once, `requests[r] = (axis, side)`: the
+    /// derivative along `axis` with that axis' kink side (the other axes take side +1). One
+    /// pass over the grid points in parallel chunks of entries (a warm IK iteration asks for
+    /// six or more), each output summed over the corners in the same order as
+    /// [`PhenGrid::interp`], so the values are identical to separate calls.
+    pub(super) fn interp_derivatives(
+        &self,
+        beta: &[f64; 6],
+        requests: &[(usize, i8)],
+    ) -> Vec<Vec<V3>> {
+        let len = self.points[0].len();
+        let weights: Vec<Vec<(usize, f64)>> = requests
+            .iter()
+            .map(|&(i, side)| {
+                let mut sides = [1i8; 6];
+                sides[i] = side;
+                corner_weights(beta, &sides, Some(i))
+            })
+            .collect();
+        // Entry chunks in parallel, every request per chunk (each corner's chunk is read once
+        // while it is in cache); entry-major `[entry][request]`, split at the end.
+        const CHUNK: usize = 128;
+        let k = requests.len();
+        if k == 0 {
+            return Vec::new();
+        }
+        let mut flat = vec![[0.0; 3]; len * k];
+        flat.par_chunks_mut(CHUNK * k)
+            .enumerate()
+            .for_each(|(chunk, out)| {
+                let start = chunk * CHUNK;
+                let end = start + out.len() / k;
+                for (r, w) in weights.iter().enumerate() {
+                    for &(idx, c) in w {
+                        for (o, p) in out[r..]
+                            .iter_mut()
+                            .step_by(k)
+                            .zip(&self.points[idx][start..end])
+                        {
+                            o[0] += c * p[0];
+                            o[1] += c * p[1];
+                            o[2] += c * p[2];
+                        }
+                    }
+                }
+            });
+        let outs: Vec<Vec<V3>> = (0..k)
+            .map(|r| flat.iter().skip(r).step_by(k).copied().collect())
+            .collect();
+        outs
+    }
 }
 
 /// Number of phenotype grid points (2 × 4 × 3 × 3 × 2 × 2).

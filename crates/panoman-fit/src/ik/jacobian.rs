@@ -120,23 +120,24 @@ impl IkSolver {
         Ok(self.column(state, &grid, Some(&pm), var)?.1)
     }
 
-    /// `∂(X, heads, tails)/∂β_i` at `β` from the grid (one-sided on a kink: `side < 0` the
-    /// cell below).
-    pub(super) fn phen_column(
+    /// `∂(X, heads, tails)/∂β_i` at `β` from the grid for every request `(i, side)`
+    /// (one-sided on a kink: `side < 0` the cell below), in one pass over the grid.
+    pub(super) fn phen_columns(
         &self,
         grid: &PhenGrid,
         beta: &[f64; 6],
-        i: usize,
-        side: i8,
-    ) -> PhenColumn {
-        let mut sides = [1i8; 6];
-        sides[i] = side;
-        let mut v = grid.interp(beta, &sides, Some(i));
+        requests: &[(usize, i8)],
+    ) -> Vec<PhenColumn> {
         let np = self.kp.pairs.len();
         let nb = self.parents.len();
-        let tails = v.split_off(np + nb);
-        let heads = v.split_off(np);
-        PhenColumn { x: v, heads, tails }
+        grid.interp_derivatives(beta, requests)
+            .into_iter()
+            .map(|mut v| {
+                let tails = v.split_off(np + nb);
+                let heads = v.split_off(np);
+                PhenColumn { x: v, heads, tails }
+            })
+            .collect()
     }
 
     /// `∂K/∂β_i` of every keypoint (set order) from a column of rest-quantity derivatives:
@@ -184,11 +185,19 @@ impl IkSolver {
         pm: Option<&PointModel>,
     ) -> (Vec<V3>, Option<Vec<V3>>) {
         let mut shape = (*cur.shape).clone();
+        let mut moved = vec![false; self.parents.len()];
         for (c, dh, dt) in moves {
             shape.heads[c] = add(shape.heads[c], scale(dh, FRAME_STEP));
             shape.tails[c] = add(shape.tails[c], scale(dt, FRAME_STEP));
+            moved[c] = true;
         }
-        let (local, inv) = self.frames(&shape.heads, &shape.tails);
+        // A face unit moves a few joints: only their frames and their children's local
+        // frames change (the phenotype moves every joint).
+        let (local, inv) = if moved.iter().filter(|&&m| m).count() * 4 < moved.len() {
+            self.frames_moved(&shape.heads, &shape.tails, &moved, &cur.shape)
+        } else {
+            self.frames(&shape.heads, &shape.tails)
+        };
         shape.local = local;
         shape.inv_rest = inv;
         let mut kin = Kin::default();
@@ -274,21 +283,25 @@ impl IkSolver {
                     }
                 }
             }
-            let mut dxs: Vec<Option<Vec<V3>>> = match pm {
+            let dxs: Vec<Option<Vec<V3>>> = match pm {
                 Some(m) => m.dx(beta, &requests).into_iter().map(Some).collect(),
-                None => Vec::new(),
+                None => vec![None; requests.len()],
             };
+            // Every requested column's values (a frame part each: independent, in parallel).
+            let cols = self.phen_columns(grid, beta, &requests);
+            let mut values: Vec<Option<(Vec<V3>, Option<Vec<V3>>)>> = cols
+                .par_iter()
+                .zip(dxs.into_par_iter())
+                .map(|(col, dx)| Some(self.phen_values(cur, col, pm.zip(dx))))
+                .collect();
             for i in 0..6 {
                 let Some(col) = vs.phen[i] else { continue };
                 let mut values = |side: i8| {
-                    let dx = pm.map(|m| {
-                        let r = requests
-                            .iter()
-                            .position(|&q| q == (i, side))
-                            .expect("requested");
-                        (m, dxs[r].take().expect("used once"))
-                    });
-                    self.phen_values(cur, &self.phen_column(grid, beta, i, side), dx)
+                    let r = requests
+                        .iter()
+                        .position(|&q| q == (i, side))
+                        .expect("requested");
+                    values[r].take().expect("used once")
                 };
                 let fwd = values(1);
                 if !on_kink(i, beta[i]) {
@@ -325,13 +338,17 @@ impl IkSolver {
             }
         }
         // Face units: frame part for the units that move the joints of a posable bone.
-        let mut unit_frame_cols: Vec<Col> = Vec::new();
-        for &j in &self.frame_units {
-            let Some(col) = vs.unit[j] else { continue };
-            let moves = self.unit_joints[j].iter().copied();
-            let (k, p) = self.frame_part(cur, moves, pm);
-            unit_frame_cols.push((col, k, p));
-        }
+        // (Independent columns: in parallel, collected in unit order.)
+        let unit_frame_cols: Vec<Col> = self
+            .frame_units
+            .par_iter()
+            .filter_map(|&j| {
+                let col = vs.unit[j]?;
+                let moves = self.unit_joints[j].iter().copied();
+                let (k, p) = self.frame_part(cur, moves, pm);
+                Some((col, k, p))
+            })
+            .collect();
         let any_unit = vs.unit.iter().any(Option::is_some);
         let axes = self.bone_axes(vs, cur);
         let kp_phen: Vec<(usize, &[V3])> = phen_cols.iter().map(|c| (c.0, &c.1[..])).collect();

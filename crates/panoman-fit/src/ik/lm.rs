@@ -2,7 +2,6 @@
 //! the damped step with its active set (dense Cholesky by faer).
 
 use super::grid::phen_cell;
-use faer::linalg::solvers::Solve;
 
 use super::jacobian::Jacobian;
 use super::keypoint_model::{Ctx, Current, PointModel, PtEval};
@@ -89,6 +88,39 @@ pub(super) fn accumulate_row(
             h[hi * n + lo] += dot(wdi, dj);
         }
     }
+}
+
+/// Sets `h`, `g` to `Σ w JᵀJ`, `Σ w Jᵀr` of the keypoint rows (`k`: the keypoints per set
+/// row). Above 64 rows the rows' two fixed halves accumulate in parallel (the second into
+/// `h2`, `g2`), summed in that order: the result does not depend on the thread count.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn accumulate_rows(
+    rows: &[Row],
+    jac: &[Vec<(usize, V3)>],
+    k: &[V3],
+    n: usize,
+    h: &mut [f64],
+    g: &mut [f64],
+    h2: &mut Vec<f64>,
+    g2: &mut Vec<f64>,
+) {
+    let run = |range: std::ops::Range<usize>, h: &mut [f64], g: &mut [f64]| {
+        h.fill(0.0);
+        g.fill(0.0);
+        for (r, jr) in rows[range.clone()].iter().zip(&jac[range]) {
+            accumulate_row(jr, sub(k[r.row], r.target), r.weight, n, h, g);
+        }
+    };
+    let m = rows.len();
+    if m <= 64 {
+        run(0..m, h, g);
+        return;
+    }
+    h2.resize(n * n, 0.0);
+    g2.resize(n, 0.0);
+    rayon::join(|| run(0..m / 2, h, g), || run(m / 2..m, h2, g2));
+    h.iter_mut().zip(h2.iter()).for_each(|(a, b)| *a += b);
+    g.iter_mut().zip(g2.iter()).for_each(|(a, b)| *a += b);
 }
 
 /// Adds one scalar residual row (`jr` in the first components) to `g`, `h`.
@@ -300,6 +332,7 @@ impl IkSolver {
         let mut iters = 0;
         let mut h = vec![0.0; n * n];
         let mut g = vec![0.0; n];
+        let (mut h2, mut g2) = (Vec::new(), Vec::new());
         while iters < max_iter {
             iters += 1;
             let prior_grad = cur.state.phenotype.map(|b| cfg.phenotype_prior * (b - 0.5));
@@ -309,12 +342,7 @@ impl IkSolver {
                 held,
                 sides,
             } = self.jacobian(vs, cur, rows, ctx, prior_grad);
-            h.iter_mut().for_each(|x| *x = 0.0);
-            g.iter_mut().for_each(|x| *x = 0.0);
-            for (r, jr) in rows.iter().zip(&jac) {
-                let res = sub(cur.k[r.row], r.target);
-                accumulate_row(jr, res, r.weight, n, &mut h, &mut g);
-            }
+            accumulate_rows(rows, &jac, &cur.k, n, &mut h, &mut g, &mut h2, &mut g2);
             if let (Some(m), Some(pe)) = (pm, &cur.pts) {
                 accumulate_points(m, pe, &pt_jac, n, &mut h, &mut g);
             }
@@ -436,11 +464,47 @@ pub(super) fn damped_step(
 /// Solves `A x = b` in place for a symmetric positive definite `A` (`n × n`, row-major, lower
 /// triangle read) by faer's Cholesky factorization `A = L Lᵀ`; `b` becomes `x`. False if `A`
 /// is not numerically positive definite (a pivot that is not > 0, NaN included).
+///
+/// Sequential on purpose: the IK's systems have a few hundred unknowns (210 in a warm frame's
+/// `all` stage), where faer's default Rayon parallelism costs more in hand-offs than it
+/// saves (measured: 0.38 → 0.13 ms per factorization on 2 cores, docs/design/shell-fit.md
+/// §3.5.1).
 pub(super) fn cholesky_solve(a: &[f64], n: usize, b: &mut [f64]) -> bool {
-    let a = faer::MatRef::from_row_major_slice(a, n, n);
-    let Ok(llt) = a.llt(faer::Side::Lower) else {
+    use faer::dyn_stack::{MemBuffer, MemStack};
+    use faer::linalg::cholesky::llt;
+    // Row-major lower triangle = column-major upper triangle; copy it column-major lower.
+    let mut l = faer::Mat::<f64>::zeros(n, n);
+    for i in 0..n {
+        for j in 0..=i {
+            l[(i, j)] = a[i * n + j];
+        }
+    }
+    let par = faer::Par::Seq;
+    let mut mem = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
+        n,
+        par,
+        Default::default(),
+    ));
+    if llt::factor::cholesky_in_place(
+        l.as_mut(),
+        Default::default(),
+        par,
+        MemStack::new(&mut mem),
+        Default::default(),
+    )
+    .is_err()
+    {
         return false;
-    };
-    llt.solve_in_place(faer::ColMut::from_slice_mut(b).as_mat_mut());
+    }
+    let rhs = faer::MatMut::from_column_major_slice_mut(b, n, 1);
+    llt::solve::solve_in_place_with_conj(
+        l.as_ref(),
+        faer::Conj::No,
+        rhs,
+        par,
+        MemStack::new(&mut MemBuffer::new(
+            llt::solve::solve_in_place_scratch::<f64>(n, 1, par),
+        )),
+    );
     true
 }

@@ -244,6 +244,42 @@ impl IkSolver {
         }
     }
     /// Frames from heads and tails: `(local, inv_rest)`.
+    /// [`IkSolver::frames`] after only the joints of the bones `moved` changed, from the
+    /// local frames and inverse rest frames of `base` (the same joints but those): the rest
+    /// frames of the moved bones are recomputed, and the local frames of those bones and of
+    /// their children. Equal to `frames(heads, tails)` bit for bit (each frame comes from
+    /// the same [`rig::rest_orientation`] call).
+    pub(super) fn frames_moved(
+        &self,
+        heads: &[V3],
+        tails: &[V3],
+        moved: &[bool],
+        base: &ShapeEval,
+    ) -> (Vec<Affine>, Vec<Affine>) {
+        let bones = &self.generator.rig().bones;
+        let frame = |c: usize| {
+            let m = if bones[c].parent.is_none() {
+                Affine::IDENTITY.m
+            } else {
+                rig::rest_orientation(heads[c], tails[c], bones[c].roll)
+            };
+            Affine::new(m, heads[c])
+        };
+        let mut inv = base.inv_rest.clone();
+        for (c, _) in moved.iter().enumerate().filter(|m| *m.1) {
+            inv[c] = frame(c).inverse_rigid();
+        }
+        let mut local = base.local.clone();
+        for (c, p) in self.parents.iter().enumerate() {
+            if let Some(p) = *p
+                && (moved[c] || moved[p])
+            {
+                local[c] = inv[p].compose(&frame(c));
+            }
+        }
+        (local, inv)
+    }
+
     pub(super) fn frames(&self, heads: &[V3], tails: &[V3]) -> (Vec<Affine>, Vec<Affine>) {
         let frames = rig::rest_frames(self.generator.rig(), heads, tails);
         let inv: Vec<Affine> = frames.iter().map(Affine::inverse_rigid).collect();
