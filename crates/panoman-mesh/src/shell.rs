@@ -41,6 +41,10 @@ use std::time::Instant;
 /// Edges per rayon task in the residual/Jacobian evaluation.
 const EDGE_CHUNK: usize = 2048;
 
+/// Vertices per task of the PCG's vector operations (fixed chunks: the dot products are summed
+/// per chunk, then in chunk order, so the iterates do not depend on the thread count).
+const PCG_CHUNK: usize = 2048;
+
 /// Fixed ranges of vertex blocks the normal-matrix product is split into (one rayon task
 /// each; a fixed count keeps the sum order, and so the result, independent of the threads).
 pub const PRODUCT_PARTS: usize = 4;
@@ -195,7 +199,10 @@ impl ShellTargets {
             let (a, b, c) = (x[a as usize], x[b as usize], x[c as usize]);
             0.5 * norm(cross(sub(b, a), sub(c, a)))
         };
+        // Per edge, independent: in parallel (the values do not depend on the split).
         (0..topo.n_edges())
+            .into_par_iter()
+            .with_min_len(4096)
             .map(|e| {
                 let [fl, fr] = topo.edge_faces[e];
                 if fr == NONE {
@@ -449,6 +456,14 @@ pub struct ShellSolver {
     /// offsets of the stored (lower) 3×3 block's three columns (rows are consecutive). Pairs
     /// absent for boundary edges hold `u32::MAX`.
     slots: Vec<[[u32; 3]; 6]>,
+    /// The assembly's split (`linearize`): the first vertex of the upper half; the edges whose
+    /// diamond lies in the lower / upper half, and those that straddle them (ascending).
+    split_vertex: usize,
+    half_edges: [Vec<u32>; 2],
+    straddling_edges: Vec<u32>,
+    /// Per point constraint (by index), the pattern positions of its vertex pairs, kept while
+    /// its vertex list stays the same ([`PointSlots`]).
+    point_slots: Vec<PointSlots>,
     /// Block pairs (lo, hi), lo < hi, sorted, with per-`lo` offsets: the off-diagonal blocks of
     /// the pattern, for the slot lookup of point constraints.
     pairs: Vec<(u32, u32)>,
@@ -466,7 +481,9 @@ pub struct ShellSolver {
     grad: Vec<f64>,
     delta: Vec<f64>,
     x_trial: Vec<V3>,
-    chunk_sums: Vec<f64>,
+    /// Per fixed edge chunk of the last [`energy_of`]: energy and the unweighted sums of
+    /// [`residual_rms`].
+    chunk_sums: Vec<ChunkSums>,
     /// Buffers of [`ShellSolver::step_pcg`] (sized on first use, kept across steps).
     pcg: PcgScratch,
     skipped: usize,
@@ -658,6 +675,24 @@ impl ShellSolver {
                 s
             })
             .collect();
+        let split_vertex = nv / 2;
+        let mut half_edges = [Vec::new(), Vec::new()];
+        let mut straddling_edges = Vec::new();
+        for e in 0..ne {
+            let [i, j] = topo.edges[e];
+            let [k, l] = topo.edge_opposite[e];
+            let v4 = [i, j, k, l];
+            let m = if l == NONE { 2 } else { 4 };
+            let upper = v4[..m]
+                .iter()
+                .filter(|&&v| v as usize >= split_vertex)
+                .count();
+            match upper {
+                0 => half_edges[0].push(e as u32),
+                u if u == m => half_edges[1].push(e as u32),
+                _ => straddling_edges.push(e as u32),
+            }
+        }
         let pattern = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
         let (factor, solve_scratch) = if analyse {
             let f = SpdFactor::symbolic_only(pattern.as_ref())?;
@@ -671,6 +706,10 @@ impl ShellSolver {
             n,
             pattern,
             slots,
+            split_vertex,
+            half_edges,
+            straddling_edges,
+            point_slots: Vec::new(),
             pairs,
             nb_off,
             factor,
@@ -712,7 +751,7 @@ impl ShellSolver {
             self.grad = vec![0.0; self.n];
             self.delta = vec![0.0; self.n];
             self.x_trial = vec![[0.0; 3]; self.topo.n_vertices];
-            self.chunk_sums = vec![0.0; ne.div_ceil(EDGE_CHUNK)];
+            self.chunk_sums = vec![ChunkSums::default(); ne.div_ceil(EDGE_CHUNK)];
         }
     }
 
@@ -761,36 +800,51 @@ impl ShellSolver {
                     *row = edge_rows(topo, targets, x, base + off, h_min);
                 }
             });
-        // Scatter (sequential: deterministic and cheap next to the factorization).
+        // Assembly (docs/design/shell-fit.md §3.5.1): the vertices are split in two fixed halves;
+        // an edge whose diamond lies in one half writes only entries of that half (every
+        // stored entry lies in the columns of its block's smaller vertex), so the two halves'
+        // edges scatter in parallel into disjoint slices, each in edge order; then the edges
+        // that straddle the halves (3.6 % on the full template) in edge order. The sums do not
+        // depend on the thread count.
         let col_ptr = self.pattern.col_ptr();
+        let rows = &self.rows;
+        let slots = &self.slots;
+        let half = self.split_vertex;
+        let (v_lo, v_hi) = self.jtj.split_at_mut(col_ptr[3 * half]);
+        let (g_lo, g_hi) = self.grad.split_at_mut(3 * half);
+        let [e_lo, e_hi] = &self.half_edges;
+        rayon::join(
+            || {
+                v_lo.fill(0.0);
+                g_lo.fill(0.0);
+                scatter_edges(topo, rows, slots, col_ptr, e_lo, v_lo, g_lo, 0);
+            },
+            || {
+                v_hi.fill(0.0);
+                g_hi.fill(0.0);
+                scatter_edges(topo, rows, slots, col_ptr, e_hi, v_hi, g_hi, half);
+            },
+        );
+        scatter_edges(
+            topo,
+            rows,
+            slots,
+            col_ptr,
+            &self.straddling_edges,
+            &mut self.jtj,
+            &mut self.grad,
+            0,
+        );
         let vals = &mut self.jtj;
         let grad = &mut self.grad;
-        vals.fill(0.0);
-        grad.fill(0.0);
+        // Energy and skipped rows in edge order (sequential: a deterministic sum).
         let mut energy = 0.0;
         let mut skipped = 0;
-        for (e, row) in self.rows.iter().enumerate() {
-            let [i, j] = topo.edges[e];
-            let sl = &self.slots[e];
+        for row in rows.iter() {
             energy += row.r_len * row.r_len;
-            let vl = [i as usize, j as usize];
-            for a in 0..2 {
-                add_diag(vals, col_ptr, vl[a], row.j_len[a]);
-                axpy(grad, vl[a], row.j_len[a], row.r_len);
-            }
-            add_off(vals, &sl[0], vl, 0, 1, &row.j_len);
             skipped += row.skipped as usize;
             if row.has_ang {
                 energy += row.r_ang * row.r_ang;
-                let [k, l] = topo.edge_opposite[e];
-                let v4 = [i as usize, j as usize, k as usize, l as usize];
-                for a in 0..4 {
-                    add_diag(vals, col_ptr, v4[a], row.j_ang[a]);
-                    axpy(grad, v4[a], row.j_ang[a], row.r_ang);
-                }
-                for (p, &(a, b)) in PAIRS.iter().enumerate() {
-                    add_off(vals, &sl[p], v4, a, b, &row.j_ang);
-                }
             }
         }
         for h in &targets.handles {
@@ -806,6 +860,7 @@ impl ShellSolver {
             ds.weight.fill(0.0);
             ds.offset.fill([0.0; 3]);
         }
+        let mut point_slots = std::mem::take(&mut self.point_slots);
         for (k, pc) in targets.points.iter().enumerate() {
             energy += pc.energy(x);
             let d = pc.offset(x);
@@ -828,48 +883,77 @@ impl ShellSolver {
                 Some(nn) => {
                     let s = dot(nn, d);
                     (
-                        [0, 1, 2].map(|r| [0, 1, 2].map(|c| nn[r] * nn[c])),
+                        Some([0, 1, 2].map(|r| [0, 1, 2].map(|c| nn[r] * nn[c]))),
                         scale(nn, s),
                     )
                 }
-                None => ([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], d),
+                None => (None, d),
             };
+            // The pattern positions of the off-diagonal pairs (searched once per constraint
+            // and kept while its vertex list is the same: keypoint rows repeat every frame).
+            if point_slots.len() <= k {
+                point_slots.resize_with(k + 1, PointSlots::default);
+            }
+            let ps = &mut point_slots[k];
+            if !ps.verts.iter().copied().eq(pc.rows.iter().map(|r| r.0)) {
+                ps.verts = pc.rows.iter().map(|r| r.0).collect();
+                ps.q.clear();
+                for (p, &(vm, _)) in pc.rows.iter().enumerate() {
+                    for &(vn, _) in &pc.rows[..=p] {
+                        if vm != vn {
+                            let (lo, hi) = (vm.min(vn), vm.max(vn));
+                            let q = self.pairs
+                                [self.nb_off[lo as usize]..self.nb_off[lo as usize + 1]]
+                                .binary_search(&(lo, hi))
+                                .map_err(|_| {
+                                    ps.verts.clear();
+                                    MeshError::Mismatch(format!(
+                                        "point constraint {k}: vertices {lo} and {hi} are not coupled in the solver's pattern (build it with ShellSolver::with_extra_pairs)"
+                                    ))
+                                })?;
+                            ps.q.push(q as u32);
+                        }
+                    }
+                }
+            }
+            let mut slots = ps.q.iter();
             for (p, &(vm, bm)) in pc.rows.iter().enumerate() {
                 axpy(grad, vm as usize, ad, pc.weight * bm);
                 for (q, &(vn, bn)) in pc.rows[..=p].iter().enumerate() {
                     // A vertex listed twice meets itself as (p, q) and (q, p).
                     let twice = if vm == vn && q != p { 2.0 } else { 1.0 };
                     let f = twice * pc.weight * bm * bn;
-                    if vm == vn {
+                    // The block f·A; for A = I only its diagonal (the zeros add nothing).
+                    let base = if vm == vn {
                         let m = vm as usize;
-                        for c in 0..3 {
-                            let base = col_ptr[3 * m + c] - c;
-                            for r in c..3 {
-                                vals[base + r] += f * a[r][c];
+                        [0, 1, 2].map(|c| col_ptr[3 * m + c] - c)
+                    } else {
+                        let lo = vm.min(vn) as usize;
+                        let q = *slots.next().expect("a slot per pair") as usize;
+                        [0, 1, 2].map(|c| col_ptr[3 * lo + c] + (3 - c) + 3 * q)
+                    };
+                    let rows_from = |c: usize| if vm == vn { c } else { 0 };
+                    match &a {
+                        Some(a) => {
+                            for c in 0..3 {
+                                for r in rows_from(c)..3 {
+                                    vals[base[c] + r] += f * a[r][c];
+                                }
                             }
                         }
-                    } else {
-                        let (lo, hi) = (vm.min(vn), vm.max(vn));
-                        let q = self.pairs[self.nb_off[lo as usize]..self.nb_off[lo as usize + 1]]
-                            .binary_search(&(lo, hi))
-                            .map_err(|_| {
-                                MeshError::Mismatch(format!(
-                                    "point constraint {k}: vertices {lo} and {hi} are not coupled in the solver's pattern (build it with ShellSolver::with_extra_pairs)"
-                                ))
-                            })?;
-                        for c in 0..3 {
-                            let sl = col_ptr[3 * lo as usize + c] + (3 - c) + 3 * q;
-                            for r in 0..3 {
-                                vals[sl + r] += f * a[r][c];
+                        None => {
+                            for c in 0..3 {
+                                vals[base[c] + c] += f;
                             }
                         }
                     }
                 }
             }
         }
+        self.point_slots = point_slots;
         if !energy.is_finite()
-            || grad.iter().any(|g| !g.is_finite())
-            || vals.iter().any(|g| !g.is_finite())
+            || grad.par_iter().any(|g| !g.is_finite())
+            || vals.par_iter().any(|g| !g.is_finite())
         {
             return Err(MeshError::NonFinite(
                 "shell solver: non-finite value after assembling JᵀJ and Jᵀr".into(),
@@ -992,18 +1076,23 @@ impl ShellSolver {
                 yb[r] = d[r][0] * vb[0] + d[r][1] * vb[1] + d[r][2] * vb[2];
             }
             let nbs = &self.pairs[self.nb_off[b]..self.nb_off[b + 1]];
+            let deg = nbs.len();
+            // The off-diagonal blocks of column c: 3 rows per neighbour, contiguous.
+            let cols = [
+                &vals[base[0] + 3..base[0] + 3 + 3 * deg],
+                &vals[base[1] + 2..base[1] + 2 + 3 * deg],
+                &vals[base[2] + 1..base[2] + 1 + 3 * deg],
+            ];
             for (q, &(_, a)) in nbs.iter().enumerate() {
                 let a = 3 * a as usize;
-                let o = [
-                    base[0] + 3 + 3 * q,
-                    base[1] + 2 + 3 * q,
-                    base[2] + 1 + 3 * q,
-                ];
-                let va = [v[a], v[a + 1], v[a + 2]];
+                let va: [f64; 3] = v[a..a + 3].try_into().expect("3 entries");
+                let l: [[f64; 3]; 3] =
+                    cols.map(|col| col[3 * q..3 * q + 3].try_into().expect("3 entries"));
+                let oa: &mut [f64; 3] = (&mut out[a..a + 3]).try_into().expect("3 entries");
                 for r in 0..3 {
-                    // L[r][c] = vals[o[c] + r]: row 3a+r, column 3b+c.
-                    let (l0, l1, l2) = (vals[o[0] + r], vals[o[1] + r], vals[o[2] + r]);
-                    out[a + r] += l0 * vb[0] + l1 * vb[1] + l2 * vb[2];
+                    // L[r][c] = l[c][r]: row 3a+r, column 3b+c.
+                    let (l0, l1, l2) = (l[0][r], l[1][r], l[2][r]);
+                    oa[r] += l0 * vb[0] + l1 * vb[1] + l2 * vb[2];
                     yb[0] += l0 * va[r];
                     yb[1] += l1 * va[r];
                     yb[2] += l2 * va[r];
@@ -1200,13 +1289,29 @@ impl ShellSolver {
             *b = sym3_inverse(b)?;
         }
         let inv = &*inv;
-        let precond = |r: &[f64], z: &mut [f64]| {
-            for (v, m) in inv.iter().enumerate() {
-                let q = [r[3 * v], r[3 * v + 1], r[3 * v + 2]];
-                for c in 0..3 {
-                    z[3 * v + c] = m[c][0] * q[0] + m[c][1] * q[1] + m[c][2] * q[2];
-                }
-            }
+        let diag = &self.diag_scale;
+        // The vector work runs over fixed chunks of `PCG_CHUNK` vertices in parallel, fused
+        // where the data allow; dot products are summed per chunk and then in chunk order, so
+        // the iterates do not depend on the thread count.
+        let ordered_sum = |parts: Vec<f64>| parts.iter().sum::<f64>();
+        // z = M⁻¹ r, returning rᵀz.
+        let precond = |r: &[f64], z: &mut [f64]| -> f64 {
+            ordered_sum(
+                chunks(z)
+                    .zip(r.par_chunks(3 * PCG_CHUNK))
+                    .zip(inv.par_chunks(PCG_CHUNK))
+                    .map(|((z, r), inv)| {
+                        let mut rz = 0.0;
+                        for ((z, r), m) in z.chunks_exact_mut(3).zip(r.chunks_exact(3)).zip(inv) {
+                            for c in 0..3 {
+                                z[c] = m[c][0] * r[0] + m[c][1] * r[1] + m[c][2] * r[2];
+                                rz += r[c] * z[c];
+                            }
+                        }
+                        rz
+                    })
+                    .collect(),
+            )
         };
         for (ri, g) in r.iter_mut().zip(&self.grad) {
             *ri = -g;
@@ -1219,25 +1324,48 @@ impl ShellSolver {
                 residual_dot_step: 0.0,
             });
         }
-        precond(r, z);
+        let mut rz = precond(r, z);
         p.copy_from_slice(z);
-        let mut rz: f64 = r.iter().zip(z.iter()).map(|(a, b)| a * b).sum();
         for it in 1..=opts.max_iterations {
             self.normal_matrix_mul_into(p, q, parts);
-            for c in 0..n {
-                q[c] += mu * self.diag_scale[c] * p[c];
-            }
-            let pq: f64 = p.iter().zip(q.iter()).map(|(a, b)| a * b).sum();
+            // q += μ D p, returning pᵀq.
+            let pq = ordered_sum(
+                chunks(q)
+                    .zip(p.par_chunks(3 * PCG_CHUNK))
+                    .zip(diag.par_chunks(3 * PCG_CHUNK))
+                    .map(|((q, p), d)| {
+                        let mut s = 0.0;
+                        for ((q, p), d) in q.iter_mut().zip(p).zip(d) {
+                            *q += mu * d * p;
+                            s += p * *q;
+                        }
+                        s
+                    })
+                    .collect(),
+            );
             // Not positive (or NaN): not a descent direction of an SPD system.
             if pq.is_nan() || pq <= 0.0 {
                 return None;
             }
             let alpha = rz / pq;
-            for c in 0..n {
-                delta[c] += alpha * p[c];
-                r[c] -= alpha * q[c];
-            }
-            let r_norm = r.iter().map(|x| x * x).sum::<f64>().sqrt();
+            // δ += α p, r −= α q, returning |r|².
+            let rr = ordered_sum(
+                chunks(delta)
+                    .zip(r.par_chunks_mut(3 * PCG_CHUNK))
+                    .zip(p.par_chunks(3 * PCG_CHUNK))
+                    .zip(q.par_chunks(3 * PCG_CHUNK))
+                    .map(|(((d, r), p), q)| {
+                        let mut s = 0.0;
+                        for (((d, r), p), q) in d.iter_mut().zip(r.iter_mut()).zip(p).zip(q) {
+                            *d += alpha * p;
+                            *r -= alpha * q;
+                            s += *r * *r;
+                        }
+                        s
+                    })
+                    .collect(),
+            );
+            let r_norm = rr.sqrt();
             if !r_norm.is_finite() {
                 return None;
             }
@@ -1248,13 +1376,16 @@ impl ShellSolver {
                     residual_dot_step,
                 });
             }
-            precond(r, z);
-            let rz_new: f64 = r.iter().zip(z.iter()).map(|(a, b)| a * b).sum();
+            let rz_new = precond(r, z);
             let beta = rz_new / rz;
             rz = rz_new;
-            for c in 0..n {
-                p[c] = z[c] + beta * p[c];
-            }
+            chunks(p)
+                .zip(z.par_chunks(3 * PCG_CHUNK))
+                .for_each(|(p, z)| {
+                    for (p, z) in p.iter_mut().zip(z) {
+                        *p = z + beta * *p;
+                    }
+                });
         }
         None
     }
@@ -1300,6 +1431,8 @@ impl ShellSolver {
         let (mut used, mut rejected_run) = (0usize, 0usize);
         let mut delta = std::mem::take(&mut self.delta);
         let mut x_trial = std::mem::take(&mut self.x_trial);
+        // The report's residual RMS at `x`, from the energy evaluation that accepted it.
+        let mut rms_at_x = None;
         let result = (|| -> Result<()> {
             if e <= opts.energy_tol {
                 report.stop = ShellStop::Converged;
@@ -1358,6 +1491,7 @@ impl ShellSolver {
                 match accepted {
                     Some((e_new, rho)) => {
                         x.copy_from_slice(&x_trial);
+                        rms_at_x = Some(rms_of_chunks(&self.chunk_sums, self.topo.n_edges()));
                         let rel = (e - e_new) / e;
                         used += 1;
                         rejected_run = 0;
@@ -1405,7 +1539,7 @@ impl ShellSolver {
         result?;
         report.mu = mu;
         report.skipped_bend_rows = self.skipped;
-        let (lr, ar) = residual_rms(&self.topo, targets, x);
+        let (lr, ar) = rms_at_x.unwrap_or_else(|| residual_rms(&self.topo, targets, x));
         report.length_rms = lr;
         report.angle_rms = ar;
         report.total_seconds = t_start.elapsed().as_secs_f64();
@@ -1601,6 +1735,11 @@ impl PcgScratch {
 
 /// Inverse of a symmetric 3×3 matrix by its adjugate; `None` unless positive definite
 /// (leading minors > 0).
+/// `v` in the PCG's fixed chunks ([`PCG_CHUNK`] vertices).
+fn chunks(v: &mut [f64]) -> rayon::slice::ChunksMut<'_, f64> {
+    v.par_chunks_mut(3 * PCG_CHUNK)
+}
+
 fn sym3_inverse(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
     let c00 = m[1][1] * m[2][2] - m[1][2] * m[2][1];
     let c01 = m[1][2] * m[2][0] - m[1][0] * m[2][2];
@@ -1673,31 +1812,79 @@ pub fn refine(
 /// Stretch and bend residuals of edge `e` (bend 0 on boundary edges).
 #[inline]
 fn edge_residuals(topo: &Topology, t: &ShellTargets, x: &[V3], e: usize) -> (f64, f64) {
+    let (rl, ra, _) = edge_residuals_raw(topo, t, x, e);
+    (rl, ra)
+}
+
+/// The weighted residuals of [`edge_residuals`] and, for an interior edge, the unweighted
+/// angle residual `wrap(φ − φ*)` (the length one is the weighted one over `√w`; see
+/// [`residual_rms`]).
+#[inline]
+fn edge_residuals_raw(
+    topo: &Topology,
+    t: &ShellTargets,
+    x: &[V3],
+    e: usize,
+) -> (f64, f64, Option<f64>) {
     let [i, j] = topo.edges[e];
     let (xi, xj) = (x[i as usize], x[j as usize]);
     let rl = t.length_weights[e].sqrt() * (norm(sub(xj, xi)) / t.lengths[e] - 1.0);
     let [k, l] = topo.edge_opposite[e];
-    let ra = if l == NONE || t.angle_weights[e] == 0.0 {
+    if l == NONE {
+        return (rl, 0.0, None);
+    }
+    let phi = dihedral_angle(xi, xj, x[k as usize], x[l as usize]);
+    let raw = wrap_angle(phi - t.angles[e]);
+    let ra = if t.angle_weights[e] == 0.0 {
         0.0
     } else {
-        let phi = dihedral_angle(xi, xj, x[k as usize], x[l as usize]);
-        t.angle_weights[e].sqrt() * wrap_angle(phi - t.angles[e])
+        t.angle_weights[e].sqrt() * raw
     };
-    (rl, ra)
+    (rl, ra, Some(raw))
 }
 
-/// E(x), summed per fixed chunk of edges in parallel, then sequentially.
-fn energy_of(topo: &Topology, t: &ShellTargets, x: &[V3], chunk_sums: &mut [f64]) -> f64 {
+/// Per fixed edge chunk: the energy of its rows and the unweighted sums of [`residual_rms`]
+/// (Σ RL², Σ RA² over interior edges, their count).
+#[derive(Clone, Copy, Debug, Default)]
+struct ChunkSums {
+    energy: f64,
+    len_sq: f64,
+    ang_sq: f64,
+    n_ang: usize,
+}
+
+/// [`residual_rms`] from the chunk sums of the last [`energy_of`] (the same sums in the same
+/// order: equal to it bit for bit).
+fn rms_of_chunks(chunks: &[ChunkSums], ne: usize) -> (f64, f64) {
+    let (sl, sa, na) = chunks.iter().fold((0.0, 0.0, 0), |a, b| {
+        (a.0 + b.len_sq, a.1 + b.ang_sq, a.2 + b.n_ang)
+    });
+    (
+        (sl / ne.max(1) as f64).sqrt(),
+        (sa / na.max(1) as f64).sqrt(),
+    )
+}
+
+/// E(x), summed per fixed chunk of edges in parallel, then sequentially; the chunks also
+/// keep the unweighted residual sums of [`residual_rms`].
+fn energy_of(topo: &Topology, t: &ShellTargets, x: &[V3], chunk_sums: &mut [ChunkSums]) -> f64 {
     let ne = topo.n_edges();
     chunk_sums.par_iter_mut().enumerate().for_each(|(c, s)| {
-        let mut acc = 0.0;
+        let mut acc = ChunkSums::default();
         for e in c * EDGE_CHUNK..((c + 1) * EDGE_CHUNK).min(ne) {
-            let (rl, ra) = edge_residuals(topo, t, x, e);
-            acc += rl * rl + ra * ra;
+            let (rl, ra, raw) = edge_residuals_raw(topo, t, x, e);
+            acc.energy += rl * rl + ra * ra;
+            let [i, j] = topo.edges[e];
+            let rl_raw = norm(sub(x[j as usize], x[i as usize])) / t.lengths[e] - 1.0;
+            acc.len_sq += rl_raw * rl_raw;
+            if let Some(a) = raw {
+                acc.ang_sq += a * a;
+                acc.n_ang += 1;
+            }
         }
         *s = acc;
     });
-    let mut energy: f64 = chunk_sums.iter().sum();
+    let mut energy: f64 = chunk_sums.iter().map(|c| c.energy).sum();
     for h in &t.handles {
         let d = sub(x[h.vertex as usize], h.position);
         energy += h.weight * dot(d, d);
@@ -1750,12 +1937,61 @@ fn edge_rows(topo: &Topology, t: &ShellTargets, x: &[V3], e: usize, h_min: f64) 
     row
 }
 
+/// The JᵀJ pattern positions of one point constraint's vertex pairs: `q[i]` is the neighbour
+/// index of the i-th pair `(p, q ≤ p)` with two different vertices (in row order), for the
+/// vertex list `verts`.
+#[derive(Clone, Debug, Default)]
+struct PointSlots {
+    verts: Vec<u32>,
+    q: Vec<u32>,
+}
+
+/// Scatters the length and bend rows of `edges` (in their order) into `vals` and `grad`,
+/// which hold the values from `col_ptr[3 v0]` and the gradient from `3 v0` on (every vertex
+/// of these edges is ≥ `v0`).
+#[allow(clippy::too_many_arguments)]
+fn scatter_edges(
+    topo: &Topology,
+    rows: &[EdgeRows],
+    slots: &[[[u32; 3]; 6]],
+    col_ptr: &[usize],
+    edges: &[u32],
+    vals: &mut [f64],
+    grad: &mut [f64],
+    v0: usize,
+) {
+    let val0 = col_ptr[3 * v0];
+    for &e in edges {
+        let e = e as usize;
+        let row = &rows[e];
+        let sl = &slots[e];
+        let [i, j] = topo.edges[e];
+        let vl = [i as usize, j as usize];
+        for a in 0..2 {
+            gather_diag(vals, col_ptr, val0, vl[a], row.j_len[a]);
+            axpy(grad, vl[a] - v0, row.j_len[a], row.r_len);
+        }
+        gather_off(vals, val0, &sl[0], vl, 0, 1, &row.j_len);
+        if row.has_ang {
+            let [k, l] = topo.edge_opposite[e];
+            let v4 = [i as usize, j as usize, k as usize, l as usize];
+            for a in 0..4 {
+                gather_diag(vals, col_ptr, val0, v4[a], row.j_ang[a]);
+                axpy(grad, v4[a] - v0, row.j_ang[a], row.r_ang);
+            }
+            for (p, &(a, b)) in PAIRS.iter().enumerate() {
+                gather_off(vals, val0, &sl[p], v4, a, b, &row.j_ang);
+            }
+        }
+    }
+}
+
 /// Adds the diagonal block `g gᵀ` of vertex `a` (lower triangle; column 3a+c starts with row
-/// 3a+c).
+/// 3a+c) to `vals`, which holds the values from global offset `val0` on.
 #[inline]
-fn add_diag(vals: &mut [f64], col_ptr: &[usize], a: usize, g: V3) {
+fn gather_diag(vals: &mut [f64], col_ptr: &[usize], val0: usize, a: usize, g: V3) {
     for c in 0..3 {
-        let base = col_ptr[3 * a + c] - c;
+        let base = col_ptr[3 * a + c] - c - val0;
         for r in c..3 {
             vals[base + r] += g[r] * g[c];
         }
@@ -1763,10 +1999,12 @@ fn add_diag(vals: &mut [f64], col_ptr: &[usize], a: usize, g: V3) {
 }
 
 /// Adds the off-diagonal block of the local pair (p, q) of a row with gradients `g` on vertices
-/// `v`: the stored block is (rows of the larger vertex, columns of the smaller).
+/// `v` (the stored block is rows of the larger vertex, columns of the smaller) to `vals`, which
+/// holds the values from global offset `val0` on.
 #[inline]
-fn add_off<const N: usize>(
+fn gather_off<const N: usize>(
     vals: &mut [f64],
+    val0: usize,
     slot: &[u32; 3],
     v: [usize; N],
     p: usize,
@@ -1775,7 +2013,7 @@ fn add_off<const N: usize>(
 ) {
     let (hi, lo) = if v[p] > v[q] { (p, q) } else { (q, p) };
     for c in 0..3 {
-        let s = slot[c] as usize;
+        let s = slot[c] as usize - val0;
         let gc = g[lo][c];
         for r in 0..3 {
             vals[s + r] += g[hi][r] * gc;

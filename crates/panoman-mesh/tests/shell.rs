@@ -9,6 +9,7 @@ use panoman_mesh::geom::{V3, norm, sub};
 use panoman_mesh::rla::{dihedral_angles, edge_lengths};
 use panoman_mesh::shell::{
     Handle, PcgOptions, PointConstraint, ShellOptions, ShellSolver, ShellStop, ShellTargets,
+    residual_rms,
 };
 use panoman_mesh::sparse::SpdFactor;
 use panoman_mesh::{Reconstructor, Topology};
@@ -643,4 +644,156 @@ fn pcg_steps_match_the_factored_step() {
     assert_eq!(r_fb.pcg_fallbacks, r_fb.iterations);
     assert_eq!(r_fb.energies, r_direct.energies);
     assert_eq!(y_fb, y_direct);
+}
+
+/// The report's residual RMS (taken from the energy evaluation that accepted the last step,
+/// or computed afresh when no step was accepted) equals `residual_rms` at the returned
+/// vertices bit for bit, with one or several accepted steps and with none; a grid mesh has
+/// boundary edges (no angle row), and zero angle weights keep their angles in the RMS.
+#[test]
+fn report_rms_equals_residual_rms_at_the_result() {
+    let (truth, topo) = deformed_sphere(2);
+    let (generic, x0) = generic_problem(&truth, &topo, 5);
+    let (gx, gf) = grid(6);
+    let gtopo = Topology::build(gx.len(), &gf).unwrap();
+    let bent: Vec<V3> = gx
+        .iter()
+        .map(|p| [p[0], p[1], p[2] + 0.2 * p[0] * p[1]])
+        .collect();
+    let mut zero_angles = ShellTargets::from_positions(&gtopo, &bent, 1.0).unwrap();
+    let interior = (0..gtopo.n_edges())
+        .find(|&e| zero_angles.angle_weights[e] > 0.0)
+        .unwrap();
+    zero_angles.angle_weights[interior] = 0.0;
+    let cases: Vec<(&Topology, &ShellTargets, Vec<V3>, usize)> = vec![
+        (&topo, &generic, x0.clone(), 1),
+        (&topo, &generic, x0.clone(), 5),
+        (&gtopo, &zero_angles, gx.clone(), 3),
+    ];
+    for (topo, targets, start, iterations) in cases {
+        for pcg in [None, Some(PcgOptions::default())] {
+            let mut x = start.clone();
+            let rep = ShellSolver::with_extra_pairs(topo, &EXTRA_PAIRS)
+                .unwrap()
+                .solve(
+                    targets,
+                    &mut x,
+                    &ShellOptions {
+                        max_iterations: iterations,
+                        pcg,
+                        ..Default::default()
+                    },
+                )
+                .unwrap();
+            assert!(rep.accepted >= 1, "{rep:?}");
+            let (lr, ar) = residual_rms(topo, targets, &x);
+            assert_eq!((rep.length_rms, rep.angle_rms), (lr, ar));
+        }
+    }
+    // No step taken (already at the targets' own mesh): computed afresh.
+    let own = ShellTargets::from_positions(&topo, &truth, 1.0).unwrap();
+    let mut x = truth.clone();
+    let rep = ShellSolver::new(&topo)
+        .unwrap()
+        .solve(&own, &mut x, &ShellOptions::default())
+        .unwrap();
+    assert_eq!(rep.accepted, 0);
+    assert_eq!(
+        (rep.length_rms, rep.angle_rms),
+        residual_rms(&topo, &own, &x)
+    );
+}
+
+/// A whole solve — the assembly in two vertex halves plus the straddling edges, and PCG's
+/// vector work in fixed chunks with ordered partial sums — gives bit-identical vertices,
+/// energies and iteration counts with 1, 2 and 3 threads (PanoMan's "deterministic given a
+/// seed"). The sphere (subdivision 5: 10,242 vertices) spans several PCG chunks.
+#[test]
+fn solve_is_bit_identical_for_any_thread_count() {
+    let (truth, topo) = deformed_sphere(5);
+    let (targets, start) = generic_problem(&truth, &topo, 11);
+    let run = |threads: usize, pcg: Option<PcgOptions>| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut x = start.clone();
+            let rep = ShellSolver::with_extra_pairs(&topo, &EXTRA_PAIRS)
+                .unwrap()
+                .solve(
+                    &targets,
+                    &mut x,
+                    &ShellOptions {
+                        max_iterations: 2,
+                        pcg,
+                        ..Default::default()
+                    },
+                )
+                .unwrap();
+            (x, rep)
+        })
+    };
+    for pcg in [None, Some(PcgOptions::default())] {
+        let (x1, r1) = run(1, pcg);
+        assert!(r1.accepted >= 1);
+        if pcg.is_some() {
+            assert!(r1.pcg_iterations > 1 && r1.pcg_fallbacks == 0, "{r1:?}");
+        }
+        for threads in [2, 3] {
+            let (x, r) = run(threads, pcg);
+            assert_eq!(r.energies, r1.energies, "{threads} threads, pcg {pcg:?}");
+            assert_eq!(r.pcg_iterations, r1.pcg_iterations);
+            assert!(
+                x.iter()
+                    .flatten()
+                    .zip(x1.iter().flatten())
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{threads} threads, pcg {pcg:?}: vertices differ from one thread's"
+            );
+        }
+    }
+}
+
+/// The solver keeps each point constraint's pattern positions while its vertex list stays the
+/// same: re-linearising after a constraint changed its vertices (and with a constraint fewer
+/// and one more) gives the same JᵀJ and gradient as a fresh solver, bit for bit.
+#[test]
+fn point_constraint_slots_follow_changed_vertex_lists() {
+    let (truth, topo) = deformed_sphere(2);
+    let (mut targets, x) = generic_problem(&truth, &topo, 3);
+    let n = 3 * x.len();
+    let mut reused = ShellSolver::with_extra_pairs(&topo, &EXTRA_PAIRS).unwrap();
+    reused.linearize(&targets, &x, 1e-6).unwrap();
+    let f1 = topo.faces[7];
+    let variants: Vec<Vec<PointConstraint>> = vec![
+        // Constraint 1 moved to another face.
+        vec![
+            targets.points[0].clone(),
+            PointConstraint {
+                rows: vec![(f1[0], 0.3), (f1[1], 0.3), (f1[2], 0.4)],
+                ..targets.points[1].clone()
+            },
+        ],
+        // Only the second one left (now at index 0), then both again plus a repeat.
+        vec![targets.points[1].clone()],
+        vec![
+            targets.points[0].clone(),
+            targets.points[1].clone(),
+            targets.points[0].clone(),
+        ],
+    ];
+    let v: Vec<f64> = (0..n).map(|i| ((i * 7919) % 13) as f64 - 6.0).collect();
+    for points in variants {
+        targets.points = points;
+        let e_reused = reused.linearize(&targets, &x, 1e-6).unwrap();
+        let mut fresh = ShellSolver::with_extra_pairs(&topo, &EXTRA_PAIRS).unwrap();
+        let e_fresh = fresh.linearize(&targets, &x, 1e-6).unwrap();
+        assert_eq!(e_reused, e_fresh);
+        assert_eq!(reused.gradient(), fresh.gradient());
+        let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
+        reused.normal_matrix_mul(&v, &mut a);
+        fresh.normal_matrix_mul(&v, &mut b);
+        assert_eq!(a, b);
+    }
 }
