@@ -354,37 +354,47 @@ impl PanoManModel {
     pub fn rla_with_residual(&self, params: &Params, r: Option<&[f32]>) -> Rla {
         let ne = self.n_edges();
         let mut rla = Rla::zeros(ne);
-        for (b, block) in self.blocks.iter().enumerate() {
-            let out = match Quantity::of_block(b) {
-                Quantity::Length => &mut rla.rl,
-                Quantity::Angle => &mut rla.ra,
-            };
-            for (j, &e) in block.columns.iter().enumerate() {
-                out[e as usize] += block.mean[j] as f64;
-            }
-            let beta = params.beta_of(&block.name, block.n_components());
-            for (k, &bk) in beta.iter().enumerate() {
-                if bk == 0.0 {
+        if let Some(r) = r {
+            assert_eq!(
+                r.len(),
+                self.blocks[0].columns.len() + self.blocks[3].columns.len(),
+                "correction residual length"
+            );
+        }
+        // RL and RA are written by disjoint blocks: one task each, every output summed in
+        // the sequential order (blocks, then the correction).
+        let fill = |out: &mut Vec<f64>, quantity: Quantity| {
+            for (b, block) in self.blocks.iter().enumerate() {
+                if Quantity::of_block(b) != quantity {
                     continue;
                 }
-                let (cols, vals) = block.components.row(k);
-                for (&j, &v) in cols.iter().zip(vals) {
-                    out[block.columns[j as usize] as usize] += bk * v as f64;
+                for (j, &e) in block.columns.iter().enumerate() {
+                    out[e as usize] += block.mean[j] as f64;
+                }
+                let beta = params.beta_of(&block.name, block.n_components());
+                for (k, &bk) in beta.iter().enumerate() {
+                    if bk == 0.0 {
+                        continue;
+                    }
+                    let (cols, vals) = block.components.row(k);
+                    for (&j, &v) in cols.iter().zip(vals) {
+                        out[block.columns[j as usize] as usize] += bk * v as f64;
+                    }
                 }
             }
-        }
-        if let Some(r) = r {
-            let bl = &self.blocks[0];
-            let ba = &self.blocks[3];
-            let n1 = bl.columns.len();
-            assert_eq!(r.len(), n1 + ba.columns.len(), "correction residual length");
-            for (j, &e) in bl.columns.iter().enumerate() {
-                rla.rl[e as usize] += r[j] as f64;
+            if let Some(r) = r {
+                let n1 = self.blocks[0].columns.len();
+                let (block, part) = match quantity {
+                    Quantity::Length => (&self.blocks[0], &r[..n1]),
+                    Quantity::Angle => (&self.blocks[3], &r[n1..]),
+                };
+                for (&e, &x) in block.columns.iter().zip(part) {
+                    out[e as usize] += x as f64;
+                }
             }
-            for (j, &e) in ba.columns.iter().enumerate() {
-                rla.ra[e as usize] += r[n1 + j] as f64;
-            }
-        }
+        };
+        let Rla { rl, ra } = &mut rla;
+        rayon::join(|| fill(rl, Quantity::Length), || fill(ra, Quantity::Angle));
         rla
     }
 
