@@ -637,6 +637,29 @@ impl Fitter {
         Some(r)
     }
 
+    /// Computes (and keeps) the correction residual that the first β-step of [`Fitter::fit`]
+    /// with `c` and `opts` will ask for when it starts from the previous frame's β
+    /// ([`FitOptions::correction_warm_start`]): `R(β_prev)` depends only on the previous frame,
+    /// so a tracker can compute it while the skeletal IK of the new frame runs
+    /// ([`crate::pipeline::fit_frame`]). The fit's result is the same (the fit finds it
+    /// in the memo); nothing happens when that β-step would not ask for it.
+    pub fn prefetch_correction(&mut self, c: &Constraints, opts: &FitOptions) {
+        let body = &self.model.blocks[0].name;
+        if let Some(prev) = &c.previous
+            && opts.correction
+            && opts.correction_warm_start
+            && opts.correction_iterations > 0
+            && self.model.correction.is_some()
+            && prev.params.beta.contains_key(body)
+        {
+            let params = Params {
+                beta: prev.params.beta.clone(),
+                ..Default::default()
+            };
+            self.correction(&params);
+        }
+    }
+
     /// Shell targets of the guidance pose `B_P(α, β)` on the rest shape `B_S(α)`.
     fn guidance(
         &mut self,

@@ -407,7 +407,27 @@ pub fn ik_icp(
 /// refined by [`ik_icp`] (default options; no phenotype restarts when warm-started), then the
 /// staged PanoMan fit (with its own ICP passes on the surface) from the IK mesh. Returns the
 /// IK result (after the skeletal ICP) and the fit.
+///
+/// The frame runs on a worker of rayon's global pool (called from outside the pool,
+/// `rayon::scope` hands it to a worker and blocks): a frame makes dozens of small fork-joins
+/// (IK columns, assembly halves, PCG chunks), which start cheaply from a worker, and no idle
+/// worker spins beside the calling thread (docs/design/shell-fit.md §3.5.1).
 pub fn fit_frame(
+    rig: &Rig,
+    ik: &IkSolver,
+    fitter: &mut Fitter,
+    c: &Constraints,
+    ik_cfg: &IkConfig,
+    opts: &FitOptions,
+    warm: Option<&IkState>,
+) -> Result<(IkResult, FitResult)> {
+    let mut out = None;
+    rayon::scope(|_| out = Some(fit_frame_here(rig, ik, fitter, c, ik_cfg, opts, warm)));
+    out.expect("the scope ran its closure")
+}
+
+/// [`fit_frame`] on the calling thread.
+fn fit_frame_here(
     rig: &Rig,
     ik: &IkSolver,
     fitter: &mut Fitter,
@@ -421,7 +441,14 @@ pub fn fit_frame(
         initial_state: warm.cloned(),
         ..ik_cfg.clone()
     };
-    let (mut r, attempts) = robust_ik(fitter.model(), ik, c, &cfg, &opts.quality)?;
+    // The first β-step's correction residual depends only on the previous frame: computed
+    // while the IK runs (the IK's sequential parts leave a core free).
+    let model = fitter.model().clone();
+    let (ik_out, ()) = rayon::join(
+        || robust_ik(&model, ik, c, &cfg, &opts.quality),
+        || fitter.prefetch_correction(c, opts),
+    );
+    let (mut r, attempts) = ik_out?;
     if c.points.is_some() {
         let icp = IkIcpOptions {
             // A warm-started frame keeps its phenotype basin.

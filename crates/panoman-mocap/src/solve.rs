@@ -690,6 +690,21 @@ impl MarkerSolver {
         cal: &Calibration,
         active: &[bool],
     ) -> Result<Vec<SolvedFrame>> {
+        // On a worker of rayon's pool, as `panoman_fit::fit_frame` runs a frame: the frames'
+        // many small fork-joins start from a worker.
+        let mut res = None;
+        rayon::scope(|_| res = Some(self.track_here(seq, frames, cal, active)));
+        res.expect("the scope ran its closure")
+    }
+
+    /// [`MarkerSolver::track`] on the calling thread.
+    fn track_here(
+        &mut self,
+        seq: &MarkerSequence,
+        frames: &[usize],
+        cal: &Calibration,
+        active: &[bool],
+    ) -> Result<Vec<SolvedFrame>> {
         let mut out: Vec<SolvedFrame> = Vec::with_capacity(frames.len());
         let mut carry: Option<Carry> = None;
         for &f in frames {
