@@ -82,14 +82,7 @@ impl PhenGrid {
         requests: &[(usize, i8)],
     ) -> Vec<Vec<V3>> {
         let len = self.points[0].len();
-        let weights: Vec<Vec<(usize, f64)>> = requests
-            .iter()
-            .map(|&(i, side)| {
-                let mut sides = [1i8; 6];
-                sides[i] = side;
-                corner_weights(beta, &sides, Some(i))
-            })
-            .collect();
+        let weights = derivative_weights(beta, requests);
         // Entry chunks in parallel, every request per chunk (each corner's chunk is read once
         // while it is in cache); entry-major `[entry][request]`, split at the end.
         const CHUNK: usize = 128;
@@ -126,6 +119,22 @@ impl PhenGrid {
 
 /// Number of phenotype grid points (2 × 4 × 3 × 3 × 2 × 2).
 pub(super) const N_GRID: usize = 288;
+
+/// The corner weights ([`corner_weights`]) of the derivative along `axis` for every request
+/// `(axis, side)`, that axis taking the request's kink side and the others +1.
+pub(super) fn derivative_weights(
+    beta: &[f64; 6],
+    requests: &[(usize, i8)],
+) -> Vec<Vec<(usize, f64)>> {
+    requests
+        .iter()
+        .map(|&(i, side)| {
+            let mut sides = [1i8; 6];
+            sides[i] = side;
+            corner_weights(beta, &sides, Some(i))
+        })
+        .collect()
+}
 
 /// The non-zero corner weights `(grid index, weight)` of the multilinear interpolation at
 /// `beta` (of its derivative along `deriv`), see [`PhenGrid::interp`].

@@ -14,7 +14,7 @@ use panoman_human::skinning::SkinWeights;
 use panoman_mesh::geom::{M3, V3, add, dot, matvec, norm, scale, sub};
 use rayon::prelude::*;
 
-use super::grid::{PhenGrid, VertexGrid, corner_weights};
+use super::grid::{PhenGrid, VertexGrid, corner_weights, derivative_weights};
 use super::solver::{IkSolver, rel_mean};
 use super::targets::PointTarget;
 use super::{IkState, N_UNITS};
@@ -370,14 +370,7 @@ impl PointModel {
     /// `∂X_pb/∂β_i` of every pair for each request `(i, side)` (one-sided on a kink,
     /// `side < 0` the cell below), in one pass over the grid.
     pub(super) fn dx(&self, beta: &[f64; 6], requests: &[(usize, i8)]) -> Vec<Vec<V3>> {
-        let sets: Vec<Vec<(usize, f64)>> = requests
-            .iter()
-            .map(|&(i, side)| {
-                let mut sides = [1i8; 6];
-                sides[i] = side;
-                corner_weights(beta, &sides, Some(i))
-            })
-            .collect();
+        let sets = derivative_weights(beta, requests);
         self.grid
             .interp_many(&self.verts, &sets)
             .iter()
