@@ -163,6 +163,18 @@ fn gauss_newton_encoder_lowers_the_vertex_error_below_least_squares() {
             "correction {corr}: Gauss–Newton mean error {e_gn} m is not below the \
              least-squares {e_ls} m ({rep:?})"
         );
+        // The iteration is deterministic and monotone: a run cut after 2 accepted iterations
+        // is the same run's prefix, so it ends at an RMS no lower than the full run's.
+        let short = panoman_model::model::GnOptions {
+            max_iterations: 2,
+            ..opts
+        };
+        let (_, rep2) = ev.encode_gn(&mesh, Some(&rest), corr, &short).unwrap();
+        assert_eq!(rep2.rms_start, rep.rms_start);
+        assert!(
+            rep2.iterations <= 2 && rep.rms <= rep2.rms,
+            "{rep2:?} vs {rep:?}"
+        );
     }
     // Through the library: the default encoder is the Gauss–Newton one and re-poses closer.
     let lib = panoman::Model::load(model_path).unwrap();

@@ -9,15 +9,19 @@
 //! f(β) = Σ_v |x_v(β) − T x̂_v|²,   x(β) = g(RL(β), RA(β), B_S(α)),   T = Kabsch(x̂ → x(β))
 //! ```
 //!
-//! over all β (α fixed): each outer iteration re-aligns the target rigidly (T), linearizes `g`
-//! at its solution ([`panoman_mesh::GLinearization`]: `J = J_g · ∂(ℓ*, φ*)/∂β` with
-//! `∂ℓ*_e/∂β_k = ℓ_r,e M_k,e` on RL blocks and `∂φ*_e/∂β_k = M_k,e` on RA blocks; 0 where the
-//! length floor is active), solves `min_δ ‖J δ + r‖²` by CGLS (each iteration one product
-//! `J p` and one `Jᵀ s`, i.e. four sparse back-substitutions, no g solve; the iteration cap
-//! truncates it to the dominant directions) and takes the first of the steps `δ, δ/2, δ/4`
-//! that lowers `f` (each trial is one g solve). With the correction MLP, `R(β)` is evaluated at
-//! every iterate but held fixed inside the linearization (its Jacobian is dropped), so the
-//! step is a quasi-Gauss–Newton step and the line search on the true `f` keeps it monotone.
+//! over all β (α fixed) by Levenberg–Marquardt: each outer iteration re-aligns the target
+//! rigidly (T), linearizes `g` at its solution ([`panoman_mesh::GLinearization`]:
+//! `J = J_g · ∂(ℓ*, φ*)/∂β` with `∂ℓ*_e/∂β_k = ℓ_r,e M_k,e` on RL blocks and
+//! `∂φ*_e/∂β_k = M_k,e` on RA blocks; 0 where the length floor is active), and solves the
+//! damped step `min_δ ‖J δ − r‖² + Σ_b λ_b ‖δ_b‖²` by CGLS (each iteration one product `J p`
+//! and one `Jᵀ s`, i.e. four sparse back-substitutions, no g solve). The damping is scaled per
+//! block, `λ_b = μ ρ_b` with `ρ_b` the curvature of `JᵀJ` along the block's part of the
+//! gradient: a body component moves a limb, a face component a millimetre of lip, and one λ
+//! for all would freeze the face and hands. A trial that lowers `f` (one g solve) is taken and
+//! μ divided by 3; otherwise μ grows 8× and the step is solved again on the same
+//! linearization. With the correction MLP, `R(β)` is evaluated at every iterate but held
+//! fixed inside the linearization (its Jacobian is dropped), so the step is a
+//! quasi-Gauss–Newton step and the acceptance test on the true `f` keeps it monotone.
 
 use super::{Evaluator, Params, Quantity};
 use crate::error::{ModelError, Result};
@@ -29,21 +33,31 @@ use panoman_mesh::{GLinearization, Gauge, RestGeometry};
 /// Options of [`Evaluator::refine_beta`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GnOptions {
-    /// Outer Gauss–Newton iterations (each: one linearization, CGLS, 1–3 g solves).
+    /// Accepted outer iterations at most (each: one linearization, then damped CGLS and one g
+    /// solve per trial until a trial lowers `f`).
     pub max_iterations: usize,
     /// CGLS iterations per outer iteration.
     pub cg_iterations: usize,
     /// Stop when an outer iteration lowers `f` by less than this fraction.
     pub tolerance: f64,
+    /// Initial Levenberg–Marquardt damping μ (dimensionless: block `b`'s unknowns get
+    /// `λ_b = μ ρ_b`, `ρ_b` the curvature of `JᵀJ` along the block's gradient): divided by 3
+    /// after an accepted step, multiplied by 8 (at least 10⁻⁶) after a rejected one.
+    pub damping: f64,
+    /// Rejected trials (each one CGLS and one g solve) per linearization before giving up.
+    pub max_rejections: usize,
 }
 
 impl Default for GnOptions {
-    /// 4 outer iterations, 25 CGLS iterations, 1 % relative decrease.
+    /// 10 outer iterations, 25 CGLS iterations, 0.1 % relative decrease, μ₀ = 10⁻⁴, 4
+    /// rejections (docs/design/splocs-model.md §8: the measured choice).
     fn default() -> Self {
         Self {
-            max_iterations: 4,
+            max_iterations: 10,
             cg_iterations: 25,
-            tolerance: 1e-2,
+            tolerance: 1e-3,
+            damping: 1e-4,
+            max_rejections: 4,
         }
     }
 }
@@ -57,7 +71,7 @@ pub struct GnReport {
     pub rms_start: f64,
     /// RMS vertex error (m) at the end.
     pub rms: f64,
-    /// g solves (including the line-search trials).
+    /// g solves (the start and every trial step, accepted or rejected).
     pub g_solves: usize,
 }
 
@@ -92,6 +106,109 @@ impl Layout {
             );
         }
     }
+}
+
+/// A linear operator `J: ℝⁿ → ℝᵐ` with its transpose, for [`damped_cgls`].
+trait LinearOperator {
+    /// `y = J x` (`x`: n, `y`: m, overwritten).
+    fn apply(&mut self, x: &[f64], y: &mut [f64]) -> Result<()>;
+    /// `x = Jᵀ y` (overwritten).
+    fn apply_t(&mut self, y: &[f64], x: &mut [f64]) -> Result<()>;
+}
+
+/// `J = ∂x/∂β` of one linearization of g (flat vertex coordinates, m = 3 #V).
+struct GnOperator<'a> {
+    ev: &'a Evaluator,
+    lin: &'a mut GLinearization,
+    lay: &'a Layout,
+    dl_drl: &'a [f64],
+}
+
+impl LinearOperator for GnOperator<'_> {
+    fn apply(&mut self, x: &[f64], y: &mut [f64]) -> Result<()> {
+        let (y3, _) = y.as_chunks_mut::<3>();
+        self.ev.gn_apply(self.lin, self.lay, self.dl_drl, x, y3)
+    }
+    fn apply_t(&mut self, y: &[f64], x: &mut [f64]) -> Result<()> {
+        let (y3, _) = y.as_chunks::<3>();
+        self.ev.gn_apply_t(self.lin, self.lay, self.dl_drl, y3, x)
+    }
+}
+
+/// The curvature scale of `JᵀJ` per block of unknowns: for block `b` (unknowns
+/// `offsets[b]..offsets[b+1]`), `ρ_b = ‖J g_b‖² / ‖g_b‖²`, the Rayleigh quotient along the
+/// block's part `g_b` of the gradient `g = Jᵀ r` (one product per block; 0 where `g_b = 0`).
+/// Blocks move very different vertex sets (a body component moves a limb, a face component a
+/// few millimetres of lip), so one damping for all would freeze the small ones.
+fn block_curvatures(op: &mut dyn LinearOperator, offsets: &[usize], r: &[f64]) -> Result<Vec<f64>> {
+    let n = *offsets.last().unwrap_or(&0);
+    let mut g = vec![0.0; n];
+    op.apply_t(r, &mut g)?;
+    let mut q = vec![0.0; r.len()];
+    let mut out = Vec::with_capacity(offsets.len().saturating_sub(1));
+    for w in offsets.windows(2) {
+        let mut gb = vec![0.0; n];
+        gb[w[0]..w[1]].copy_from_slice(&g[w[0]..w[1]]);
+        let gg: f64 = gb.iter().map(|v| v * v).sum();
+        if gg == 0.0 {
+            out.push(0.0);
+            continue;
+        }
+        op.apply(&gb, &mut q)?;
+        out.push(q.iter().map(|v| v * v).sum::<f64>() / gg);
+    }
+    Ok(out)
+}
+
+/// Damped CGLS (a Levenberg–Marquardt step): `min_δ ‖J δ − r‖² + Σ_j λ_j δ_j²` from δ = 0 by
+/// at most `iters` conjugate-gradient iterations on the normal equations
+/// `(JᵀJ + diag λ) δ = Jᵀ r`, each one product `J p` and one `Jᵀ s`. Stops early when the
+/// normal-equation residual has fallen by 10¹⁰ (in norm).
+fn damped_cgls(
+    op: &mut dyn LinearOperator,
+    lambda: &[f64],
+    r0: &[f64],
+    iters: usize,
+) -> Result<Vec<f64>> {
+    let n = lambda.len();
+    let mut res = r0.to_vec();
+    let mut delta = vec![0.0; n];
+    let mut s = vec![0.0; n];
+    op.apply_t(&res, &mut s)?;
+    let mut p = s.clone();
+    let mut gamma: f64 = s.iter().map(|v| v * v).sum();
+    let gamma0 = gamma;
+    let mut q = vec![0.0; res.len()];
+    for _ in 0..iters {
+        if gamma <= 1e-20 * gamma0 || gamma == 0.0 {
+            break;
+        }
+        op.apply(&p, &mut q)?;
+        let qq: f64 = q.iter().map(|v| v * v).sum();
+        let plp: f64 = p.iter().zip(lambda).map(|(v, l)| l * v * v).sum();
+        let denom = qq + plp;
+        if denom <= 0.0 || !denom.is_finite() {
+            break;
+        }
+        let a = gamma / denom;
+        for (d, pi) in delta.iter_mut().zip(&p) {
+            *d += a * pi;
+        }
+        for (r, qi) in res.iter_mut().zip(&q) {
+            *r -= a * qi;
+        }
+        op.apply_t(&res, &mut s)?;
+        for ((si, d), l) in s.iter_mut().zip(&delta).zip(lambda) {
+            *si -= l * d;
+        }
+        let g_new: f64 = s.iter().map(|v| v * v).sum();
+        let bta = g_new / gamma;
+        for (pi, si) in p.iter_mut().zip(&s) {
+            *pi = si + bta * *pi;
+        }
+        gamma = g_new;
+    }
+    Ok(delta)
 }
 
 /// One g evaluation at `params`: the vertices, its target lengths/angles and `f`, `T x̂`.
@@ -216,50 +333,13 @@ impl Evaluator {
         Ok(())
     }
 
-    /// CGLS for `min_δ ‖J δ + r‖²` from δ = 0, `iters` iterations.
-    fn gn_cgls(&self, pt: &Point, lay: &Layout, iters: usize) -> Result<Vec<f64>> {
-        let mut lin = self.rec.linearize(&self.ws, &pt.lengths, &pt.angles)?;
-        let nv = pt.x.len();
-        let mut res: Vec<V3> = pt
-            .target
+    /// The residual `r = T x̂ − x(β)` at `pt` (flat, m = 3 #V).
+    fn gn_residual(pt: &Point) -> Vec<f64> {
+        pt.target
             .iter()
             .zip(&pt.x)
-            .map(|(t, x)| sub(*t, *x))
-            .collect();
-        let mut delta = vec![0.0; lay.len()];
-        let mut s = vec![0.0; lay.len()];
-        self.gn_apply_t(&mut lin, lay, &pt.dl_drl, &res, &mut s)?;
-        let mut p = s.clone();
-        let mut gamma: f64 = s.iter().map(|v| v * v).sum();
-        let gamma0 = gamma;
-        let mut q = vec![[0.0; 3]; nv];
-        for _ in 0..iters {
-            if gamma <= 1e-20 * gamma0 || gamma == 0.0 {
-                break;
-            }
-            self.gn_apply(&mut lin, lay, &pt.dl_drl, &p, &mut q)?;
-            let qq: f64 = q.iter().flatten().map(|v| v * v).sum();
-            if qq <= 0.0 || !qq.is_finite() {
-                break;
-            }
-            let a = gamma / qq;
-            for (d, pi) in delta.iter_mut().zip(&p) {
-                *d += a * pi;
-            }
-            for (r, qi) in res.iter_mut().zip(&q) {
-                for c in 0..3 {
-                    r[c] -= a * qi[c];
-                }
-            }
-            self.gn_apply_t(&mut lin, lay, &pt.dl_drl, &res, &mut s)?;
-            let g_new: f64 = s.iter().map(|v| v * v).sum();
-            let bta = g_new / gamma;
-            for (pi, si) in p.iter_mut().zip(&s) {
-                *pi = si + bta * *pi;
-            }
-            gamma = g_new;
-        }
-        Ok(delta)
+            .flat_map(|(t, x)| sub(*t, *x))
+            .collect()
     }
 
     /// Refines `params.beta` (α and the rigid motion untouched) by Gauss–Newton on the vertex
@@ -296,11 +376,34 @@ impl Evaluator {
             ..GnReport::default()
         };
         let mut beta = lay.flatten(self, params);
-        for _ in 0..opts.max_iterations {
-            let delta = self.gn_cgls(&pt, &lay, opts.cg_iterations)?;
+        let mut mu = opts.damping;
+        'outer: for _ in 0..opts.max_iterations {
+            // The workspace holds the accepted point's g solution (its last solve).
+            let mut lin = self.rec.linearize(&self.ws, &pt.lengths, &pt.angles)?;
+            let r = Self::gn_residual(&pt);
+            let mut op = GnOperator {
+                ev: self,
+                lin: &mut lin,
+                lay: &lay,
+                dl_drl: &pt.dl_drl,
+            };
+            let rho = block_curvatures(&mut op, &lay.offsets, &r)?;
             let mut accepted = None;
-            for t in [1.0, 0.5, 0.25] {
-                let trial: Vec<f64> = beta.iter().zip(&delta).map(|(b, d)| b + t * d).collect();
+            for _ in 0..=opts.max_rejections {
+                let lambda: Vec<f64> = lay
+                    .offsets
+                    .windows(2)
+                    .zip(&rho)
+                    .flat_map(|(w, &c)| std::iter::repeat_n(mu * c, w[1] - w[0]))
+                    .collect();
+                let mut op = GnOperator {
+                    ev: self,
+                    lin: &mut lin,
+                    lay: &lay,
+                    dl_drl: &pt.dl_drl,
+                };
+                let delta = damped_cgls(&mut op, &lambda, &r, opts.cg_iterations)?;
+                let trial: Vec<f64> = beta.iter().zip(&delta).map(|(b, d)| b + d).collect();
                 let mut p = params.clone();
                 lay.write(self, &trial, &mut p);
                 rep.g_solves += 1;
@@ -310,18 +413,18 @@ impl Evaluator {
                     && np.f < pt.f
                 {
                     accepted = Some((trial, np));
+                    mu = (mu / 3.0).max(1e-9);
                     break;
                 }
+                mu = (mu * 8.0).max(1e-6);
             }
             let Some((trial, np)) = accepted else {
-                break;
+                break 'outer;
             };
             let rel = (pt.f - np.f) / pt.f.max(1e-300);
             beta = trial;
             pt = np;
             rep.iterations += 1;
-            // The workspace now holds the accepted point's g solution (the last trial run),
-            // which the next linearization reads.
             if rel < opts.tolerance {
                 break;
             }
@@ -347,5 +450,108 @@ impl Evaluator {
         let mut p = self.encode(mesh, rest, correction)?;
         let rep = self.refine_beta(mesh, &mut p, correction, opts)?;
         Ok((p, rep))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A dense m × n matrix (row-major) as an operator.
+    struct Dense {
+        m: usize,
+        n: usize,
+        a: Vec<f64>,
+    }
+
+    impl LinearOperator for Dense {
+        fn apply(&mut self, x: &[f64], y: &mut [f64]) -> Result<()> {
+            for (i, yi) in y.iter_mut().enumerate().take(self.m) {
+                *yi = (0..self.n).map(|j| self.a[i * self.n + j] * x[j]).sum();
+            }
+            Ok(())
+        }
+        fn apply_t(&mut self, y: &[f64], x: &mut [f64]) -> Result<()> {
+            for (j, xj) in x.iter_mut().enumerate().take(self.n) {
+                *xj = (0..self.m).map(|i| self.a[i * self.n + j] * y[i]).sum();
+            }
+            Ok(())
+        }
+    }
+
+    /// Solves the n × n SPD system `k x = b` by Gaussian elimination (no pivoting needed).
+    fn solve_spd(mut k: Vec<f64>, mut b: Vec<f64>, n: usize) -> Vec<f64> {
+        for c in 0..n {
+            for r in c + 1..n {
+                let f = k[r * n + c] / k[c * n + c];
+                for j in c..n {
+                    k[r * n + j] -= f * k[c * n + j];
+                }
+                b[r] -= f * b[c];
+            }
+        }
+        let mut x = vec![0.0; n];
+        for c in (0..n).rev() {
+            let s: f64 = (c + 1..n).map(|j| k[c * n + j] * x[j]).sum();
+            x[c] = (b[c] - s) / k[c * n + c];
+        }
+        x
+    }
+
+    #[test]
+    fn damped_cgls_solves_the_levenberg_marquardt_normal_equations() {
+        // A fixed, ill-conditioned 9 × 5 matrix (columns scaled 1 … 10⁻²) and right-hand side,
+        // the unknowns in two blocks (0..2, 2..5).
+        let (m, n) = (9, 5);
+        let offsets = [0, 2, 5];
+        let a: Vec<f64> = (0..m * n)
+            .map(|k| {
+                let (i, j) = ((k / n) as f64, (k % n) as f64);
+                ((1.7 * i + 0.3) * (j + 1.0)).sin() * 10f64.powf(-j / 2.0)
+            })
+            .collect();
+        let r: Vec<f64> = (0..m).map(|i| (0.9 * i as f64).cos()).collect();
+        let mut op = Dense { m, n, a: a.clone() };
+        let mut g = vec![0.0; n];
+        op.apply_t(&r, &mut g).unwrap();
+        // Block curvatures: the Rayleigh quotient of JᵀJ along each block's gradient part.
+        let rho = block_curvatures(&mut op, &offsets, &r).unwrap();
+        for (b, w) in offsets.windows(2).enumerate() {
+            let mut gb = vec![0.0; n];
+            gb[w[0]..w[1]].copy_from_slice(&g[w[0]..w[1]]);
+            let mut jg = vec![0.0; m];
+            op.apply(&gb, &mut jg).unwrap();
+            let want =
+                jg.iter().map(|v| v * v).sum::<f64>() / gb.iter().map(|v| v * v).sum::<f64>();
+            assert!((rho[b] - want).abs() <= 1e-12 * want, "{rho:?}");
+        }
+        assert!(
+            rho[0] > 10.0 * rho[1],
+            "the scaled block is flatter: {rho:?}"
+        );
+        let mut norms = Vec::new();
+        for mu in [0.0, 1e-3, 1e-1, 10.0] {
+            let lambda: Vec<f64> = (0..n).map(|j| mu * rho[usize::from(j >= 2)]).collect();
+            let mut k = vec![0.0; n * n];
+            for i in 0..n {
+                for j in 0..n {
+                    k[i * n + j] = (0..m).map(|t| a[t * n + i] * a[t * n + j]).sum::<f64>()
+                        + if i == j { lambda[i] } else { 0.0 };
+                }
+            }
+            let exact = solve_spd(k, g.clone(), n);
+            // In exact arithmetic CG ends after n iterations; 4n allow for rounding.
+            let got = damped_cgls(&mut op, &lambda, &r, 4 * n).unwrap();
+            let scale = exact.iter().fold(0.0f64, |s, v| s.max(v.abs()));
+            for (x, y) in got.iter().zip(&exact) {
+                assert!(
+                    (x - y).abs() <= 1e-8 * scale,
+                    "mu {mu}: {got:?} vs {exact:?}"
+                );
+            }
+            norms.push(got.iter().map(|v| v * v).sum::<f64>().sqrt());
+        }
+        // Damping shortens the step: ‖δ(μ)‖ decreases in μ.
+        assert!(norms.windows(2).all(|w| w[0] > w[1]), "{norms:?}");
     }
 }
