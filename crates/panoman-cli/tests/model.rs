@@ -328,3 +328,117 @@ fn bad_model_params_and_meshes_give_clear_errors() {
     one_line_error(&o, "dataset.safetensors");
     assert!(!dir.join("m.safetensors").exists());
 }
+
+/// The vertex-error encoder's linearization (docs/design/splocs-model.md §8) against central
+/// differences: the correction MLP's Jacobian `∂R/∂β·d` against `R(β ± h d)`, and the vertex
+/// product `∂x/∂β·d` with and without it against `pose(β ± h d)`.
+#[test]
+fn encoder_linearization_matches_finite_differences() {
+    let (data, model_path) = trained();
+    let model = std::sync::Arc::new(PanoManModel::load(model_path).unwrap());
+    let mut ev = Evaluator::new(model.clone()).unwrap();
+    let (mesh, rest, _) = held_out_row(data);
+    let mut p = ev.encode(&mesh, Some(&rest), true).unwrap();
+    p.translation = [0.0; 3];
+    p.rotation = [0.0; 3];
+    // A fixed direction over every block (entries in [−1, 1]).
+    let mut dir = p.clone();
+    for (b, blk) in model.blocks.iter().enumerate() {
+        let d: Vec<f64> = (0..blk.n_components())
+            .map(|k| (1.3 * k as f64 + 0.7 * b as f64).sin())
+            .collect();
+        dir.beta.insert(blk.name.clone(), d);
+    }
+    let shifted = |s: f64| {
+        let mut q = p.clone();
+        for (name, d) in &dir.beta {
+            let b = q.beta.get_mut(name).unwrap();
+            for (x, dx) in b.iter_mut().zip(d) {
+                *x += s * dx;
+            }
+        }
+        q
+    };
+    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    // 1. The correction alone. R is piecewise linear (ReLU) and evaluated in f32: with
+    // h = 1e-3 the central difference is exact up to f32 rounding of R (|R| ε₃₂ / h ≈ 1e-4 |R|
+    // per entry) unless a unit changes sign inside ±h; 1 % of ‖J d‖ bounds both.
+    let h = 1e-3;
+    let jd = model.correction_jacobian_product(&p, &dir).unwrap();
+    let rp = model.correction_residual(&shifted(h)).unwrap();
+    let rm = model.correction_residual(&shifted(-h)).unwrap();
+    let fd: Vec<f64> = rp
+        .iter()
+        .zip(&rm)
+        .map(|(a, b)| (*a as f64 - *b as f64) / (2.0 * h))
+        .collect();
+    let diff: Vec<f64> = fd.iter().zip(&jd).map(|(a, b)| a - b).collect();
+    assert!(norm(&jd) > 0.0);
+    assert!(
+        norm(&diff) <= 1e-2 * norm(&jd),
+        "correction Jacobian: |FD − J d| = {} vs |J d| = {}",
+        norm(&diff),
+        norm(&jd)
+    );
+    // 2. Vertices. J_g is g's Gauss–Newton derivative (rla-and-g.md §3.7: exact at consistent
+    // RL/RA, and the model's RLA are not exactly consistent), so the product is compared with
+    // the same J_g's error on the uncorrected model at the same point: adding the correction's
+    // term must leave the corrected product no further from its central difference than
+    // that (up to the f32 correction's rounding), whereas dropping the term (what the encoder
+    // did before) misses the correction's whole share of the change.
+    let fd_of = |ev: &mut Evaluator, corr: bool| {
+        let a = ev.pose(&shifted(h), corr).unwrap();
+        let b = ev.pose(&shifted(-h), corr).unwrap();
+        a.iter()
+            .zip(&b)
+            .flat_map(|(x, y)| (0..3).map(move |c| (x[c] - y[c]) / (2.0 * h)))
+            .collect::<Vec<f64>>()
+    };
+    let fd_corr = fd_of(&mut ev, true);
+    let fd_plain = fd_of(&mut ev, false);
+    let flat = |v: Vec<[f64; 3]>| v.into_iter().flatten().collect::<Vec<f64>>();
+    let with = flat(ev.vertex_jacobian_product(&p, true, &dir).unwrap());
+    let without = flat(ev.vertex_jacobian_product(&p, false, &dir).unwrap());
+    let err =
+        |fd: &[f64], j: &[f64]| norm(&fd.iter().zip(j).map(|(a, b)| a - b).collect::<Vec<_>>());
+    let e_base = err(&fd_plain, &without);
+    let e_with = err(&fd_corr, &with);
+    let e_dropped = err(&fd_corr, &without);
+    eprintln!(
+        "|FD| {} base {e_base} with {e_with} dropped {e_dropped}",
+        norm(&fd_corr)
+    );
+    assert!(
+        e_with <= 1.5 * e_base + 1e-2 * norm(&fd_corr),
+        "corrected product off by {e_with}, the uncorrected by {e_base}"
+    );
+    assert!(e_with < 0.5 * e_dropped, "{e_with} vs {e_dropped}");
+    // 3. The transpose the CGLS uses is the adjoint: ⟨J d, u⟩ = ⟨d, Jᵀ u⟩ for a fixed u, with
+    // and without the correction (its f32 products round at ~1e-6 relative).
+    let u: Vec<[f64; 3]> = (0..mesh.len())
+        .map(|v| {
+            let t = v as f64;
+            [(0.3 * t).sin(), (0.7 * t).cos(), (1.1 * t).sin()]
+        })
+        .collect();
+    let uf: Vec<f64> = u.iter().flatten().copied().collect();
+    for (corr, jd) in [(true, &with), (false, &without)] {
+        let jt = ev.vertex_jacobian_transpose_product(&p, corr, &u).unwrap();
+        let lhs: f64 = jd.iter().zip(&uf).map(|(a, b)| a * b).sum();
+        let rhs: f64 = dir
+            .beta
+            .iter()
+            .map(|(name, d)| {
+                d.iter()
+                    .zip(&jt.beta[name])
+                    .map(|(a, b)| a * b)
+                    .sum::<f64>()
+            })
+            .sum();
+        let scale = norm(jd) * norm(&uf);
+        assert!(
+            (lhs - rhs).abs() <= 1e-5 * scale,
+            "correction {corr}: <J d, u> = {lhs}, <d, J^T u> = {rhs}"
+        );
+    }
+}

@@ -56,6 +56,7 @@ fn main() {
         tolerance: env("GN_TOL", d.tolerance),
         damping: env("GN_MU", d.damping),
         max_rejections: env("GN_REJ", d.max_rejections),
+        correction_jacobian: env("GN_CJ", 0u8) == 1,
     };
     let groups: Vec<Vec<u32>> = match kind {
         2 => vec![regions.vertices_of(Part::Face)],

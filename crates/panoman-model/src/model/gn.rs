@@ -19,9 +19,13 @@
 //! gradient: a body component moves a limb, a face component a millimetre of lip, and one λ
 //! for all would freeze the face and hands. A trial that lowers `f` (one g solve) is taken and
 //! μ divided by 3; otherwise μ grows 8× and the step is solved again on the same
-//! linearization. With the correction MLP, `R(β)` is evaluated at every iterate but held
-//! fixed inside the linearization (its Jacobian is dropped), so the step is a
-//! quasi-Gauss–Newton step and the acceptance test on the true `f` keeps it monotone.
+//! linearization. With the correction MLP, `R(β)` is evaluated at every iterate; by default
+//! it is held fixed inside the linearization (a quasi-Gauss–Newton step; the acceptance test
+//! on the true `f` keeps the iteration monotone). [`GnOptions::correction_jacobian`] adds its
+//! Jacobian `∂R/∂β = (P G) ⊘ w` (`G` the ReLU network's input Jacobian at the current β, dense
+//! rank × #β_B, formed once per linearization; `P`, `w` the PCA head's basis and column
+//! weights) to the body blocks' RL/RA directions — exact within the current activation
+//! pattern, but measured worse on held-out rows (the network extrapolates along it).
 
 use super::{Evaluator, Params, Quantity};
 use crate::error::{ModelError, Result};
@@ -46,6 +50,10 @@ pub struct GnOptions {
     pub damping: f64,
     /// Rejected trials (each one CGLS and one g solve) per linearization before giving up.
     pub max_rejections: usize,
+    /// With the correction MLP: put its Jacobian `∂R/∂β` into the linearization (`true`) or
+    /// hold `R` fixed there, evaluating it only at the trial points (`false`, the default:
+    /// measured better on held-out rows, docs/design/splocs-model.md §8).
+    pub correction_jacobian: bool,
 }
 
 impl Default for GnOptions {
@@ -58,6 +66,7 @@ impl Default for GnOptions {
             tolerance: 1e-3,
             damping: 1e-4,
             max_rejections: 4,
+            correction_jacobian: false,
         }
     }
 }
@@ -82,8 +91,11 @@ struct Layout {
 
 impl Layout {
     fn new(ev: &Evaluator) -> Self {
+        Self::of_model(&ev.model)
+    }
+    fn of_model(model: &super::PanoManModel) -> Self {
         let mut offsets = vec![0];
-        for b in &ev.model.blocks {
+        for b in &model.blocks {
             offsets.push(offsets.last().unwrap() + b.n_components());
         }
         Self { offsets }
@@ -92,8 +104,11 @@ impl Layout {
         *self.offsets.last().unwrap()
     }
     fn flatten(&self, ev: &Evaluator, p: &Params) -> Vec<f64> {
+        self.flatten_model(&ev.model, p)
+    }
+    fn flatten_model(&self, model: &super::PanoManModel, p: &Params) -> Vec<f64> {
         let mut out = Vec::with_capacity(self.len());
-        for b in &ev.model.blocks {
+        for b in &model.blocks {
             out.extend(p.beta_of(&b.name, b.n_components()));
         }
         out
@@ -105,6 +120,149 @@ impl Layout {
                 beta[self.offsets[i]..self.offsets[i + 1]].to_vec(),
             );
         }
+    }
+}
+
+/// The correction MLP linearized at one β (docs/design/splocs-model.md §5.4, §8):
+/// `δR = (P G δx) ⊘ w` on the body columns (RL then RA), with `x` the MLP's input (β_LB, β_AB
+/// without their mean coefficients), `G = ∂codes/∂x` (rank × #x, dense, f32) and the PCA head's
+/// basis `P` and column weights `w`. A ReLU network is piecewise linear, so `G` is exact within
+/// the current activation pattern and the damped step keeps the iteration near it.
+struct CorrectionLin<'a> {
+    g: faer::Mat<f32>,
+    head: &'a crate::mlp::PcaHead,
+    /// Flat β index of each MLP input (body_l components 1.., then body_a components 1..).
+    inputs: Vec<usize>,
+    /// Edge of each residual entry (body_l columns, then body_a columns).
+    edges: Vec<u32>,
+    /// Residual entries that are RL (the rest are RA).
+    n_rl: usize,
+}
+
+impl<'a> CorrectionLin<'a> {
+    fn new(model: &'a super::PanoManModel, lay: &Layout, params: &Params) -> Option<Self> {
+        let c = model.correction.as_ref()?;
+        let x = model.body_beta_f32(params);
+        let (_, jac) = c.mlp.jacobian(&x);
+        let (bl, ba) = (&model.blocks[0], &model.blocks[3]);
+        let inputs: Vec<usize> = (1..bl.n_components())
+            .map(|k| lay.offsets[0] + k)
+            .chain((1..ba.n_components()).map(|k| lay.offsets[3] + k))
+            .collect();
+        debug_assert_eq!(inputs.len(), x.len());
+        let edges: Vec<u32> = bl.columns.iter().chain(&ba.columns).copied().collect();
+        Some(Self {
+            g: jac.to_dense(),
+            head: &c.head,
+            inputs,
+            edges,
+            n_rl: bl.columns.len(),
+        })
+    }
+
+    /// `dl += δR_RL`, `da += δR_RA` for the flat β direction `d`.
+    fn apply(&self, d: &[f64], dl: &mut [f64], da: &mut [f64]) {
+        use faer::{Accum, Par, linalg::matmul::matmul};
+        let x: Vec<f32> = self.inputs.iter().map(|&i| d[i] as f32).collect();
+        let mut c = vec![0.0f32; self.g.nrows()];
+        matmul(
+            faer::MatMut::from_column_major_slice_mut(&mut c, self.g.nrows(), 1),
+            Accum::Replace,
+            self.g.as_ref(),
+            faer::MatRef::from_column_major_slice(&x, x.len(), 1),
+            1.0,
+            Par::Seq,
+        );
+        let dim = self.head.dim();
+        let mut y = vec![0.0f32; dim];
+        matmul(
+            faer::MatMut::from_column_major_slice_mut(&mut y, dim, 1),
+            Accum::Replace,
+            self.head.basis(),
+            faer::MatRef::from_column_major_slice(&c, c.len(), 1),
+            1.0,
+            Par::rayon(0),
+        );
+        for (j, (&e, (&v, &w))) in self
+            .edges
+            .iter()
+            .zip(y.iter().zip(self.head.weights()))
+            .enumerate()
+        {
+            let dst = if j < self.n_rl { &mut *dl } else { &mut *da };
+            dst[e as usize] += f64::from(v / w);
+        }
+    }
+
+    /// `out[β] += ∂R/∂βᵀ (gl, ga)` (covectors on the edges' RL and RA).
+    fn apply_t(&self, gl: &[f64], ga: &[f64], out: &mut [f64]) {
+        use faer::{Accum, Par, linalg::matmul::matmul};
+        let u: Vec<f32> = self
+            .edges
+            .iter()
+            .zip(self.head.weights())
+            .enumerate()
+            .map(|(j, (&e, &w))| {
+                let src = if j < self.n_rl { gl } else { ga };
+                src[e as usize] as f32 / w
+            })
+            .collect();
+        let rank = self.g.nrows();
+        let mut c = vec![0.0f32; rank];
+        matmul(
+            faer::MatMut::from_column_major_slice_mut(&mut c, rank, 1),
+            Accum::Replace,
+            self.head.basis().transpose(),
+            faer::MatRef::from_column_major_slice(&u, u.len(), 1),
+            1.0,
+            Par::rayon(0),
+        );
+        let nx = self.g.ncols();
+        let mut x = vec![0.0f32; nx];
+        matmul(
+            faer::MatMut::from_column_major_slice_mut(&mut x, nx, 1),
+            Accum::Replace,
+            self.g.as_ref().transpose(),
+            faer::MatRef::from_column_major_slice(&c, rank, 1),
+            1.0,
+            Par::Seq,
+        );
+        for (&i, &v) in self.inputs.iter().zip(&x) {
+            out[i] += f64::from(v);
+        }
+    }
+}
+
+impl super::PanoManModel {
+    /// The correction residual's directional derivative `∂R/∂β · d` at `params`
+    /// ([`PanoManModel::correction_residual`]'s layout: the body columns, RL then RA), as the
+    /// vertex-error encoder linearizes it (docs/design/splocs-model.md §8); `direction` holds
+    /// the β direction per block. `None` without a correction MLP. Exposed for checks against
+    /// finite differences.
+    pub fn correction_jacobian_product(
+        &self,
+        params: &Params,
+        direction: &Params,
+    ) -> Option<Vec<f64>> {
+        let lay = Layout::of_model(self);
+        let c = CorrectionLin::new(self, &lay, params)?;
+        let d = lay.flatten_model(self, direction);
+        let ne = self.n_edges();
+        let (mut dl, mut da) = (vec![0.0; ne], vec![0.0; ne]);
+        c.apply(&d, &mut dl, &mut da);
+        Some(
+            c.edges
+                .iter()
+                .enumerate()
+                .map(|(j, &e)| {
+                    if j < c.n_rl {
+                        dl[e as usize]
+                    } else {
+                        da[e as usize]
+                    }
+                })
+                .collect(),
+        )
     }
 }
 
@@ -122,16 +280,19 @@ struct GnOperator<'a> {
     lin: &'a mut GLinearization,
     lay: &'a Layout,
     dl_drl: &'a [f64],
+    corr: Option<&'a CorrectionLin<'a>>,
 }
 
 impl LinearOperator for GnOperator<'_> {
     fn apply(&mut self, x: &[f64], y: &mut [f64]) -> Result<()> {
         let (y3, _) = y.as_chunks_mut::<3>();
-        self.ev.gn_apply(self.lin, self.lay, self.dl_drl, x, y3)
+        self.ev
+            .gn_apply(self.lin, self.lay, self.dl_drl, self.corr, x, y3)
     }
     fn apply_t(&mut self, y: &[f64], x: &mut [f64]) -> Result<()> {
         let (y3, _) = y.as_chunks::<3>();
-        self.ev.gn_apply_t(self.lin, self.lay, self.dl_drl, y3, x)
+        self.ev
+            .gn_apply_t(self.lin, self.lay, self.dl_drl, self.corr, y3, x)
     }
 }
 
@@ -273,6 +434,7 @@ impl Evaluator {
         lin: &mut GLinearization,
         lay: &Layout,
         dl_drl: &[f64],
+        corr: Option<&CorrectionLin>,
         d: &[f64],
         out: &mut [V3],
     ) -> Result<()> {
@@ -294,6 +456,9 @@ impl Evaluator {
                 }
             }
         }
+        if let Some(c) = corr {
+            c.apply(d, &mut dl, &mut da);
+        }
         for (x, &s) in dl.iter_mut().zip(dl_drl) {
             *x *= s;
         }
@@ -307,6 +472,7 @@ impl Evaluator {
         lin: &mut GLinearization,
         lay: &Layout,
         dl_drl: &[f64],
+        corr: Option<&CorrectionLin>,
         u: &[V3],
         out: &mut [f64],
     ) -> Result<()> {
@@ -329,6 +495,9 @@ impl Evaluator {
                     .map(|(&j, &v)| v as f64 * src[blk.columns[j as usize] as usize])
                     .sum();
             }
+        }
+        if let Some(c) = corr {
+            c.apply_t(&gl, &ga, out);
         }
         Ok(())
     }
@@ -369,6 +538,7 @@ impl Evaluator {
         let gauge = self.rec.gauge_from(&rest)?;
         let lay = Layout::new(self);
         let nv = mesh.len() as f64;
+        let model = self.model.clone();
         let mut pt = self.gn_point(params, correction, &rg, &gauge, mesh)?;
         let mut rep = GnReport {
             rms_start: (pt.f / nv).sqrt(),
@@ -381,11 +551,19 @@ impl Evaluator {
             // The workspace holds the accepted point's g solution (its last solve).
             let mut lin = self.rec.linearize(&self.ws, &pt.lengths, &pt.angles)?;
             let r = Self::gn_residual(&pt);
+            let corr_lin = if correction && opts.correction_jacobian {
+                let mut cur = params.clone();
+                lay.write(self, &beta, &mut cur);
+                CorrectionLin::new(&model, &lay, &cur)
+            } else {
+                None
+            };
             let mut op = GnOperator {
                 ev: self,
                 lin: &mut lin,
                 lay: &lay,
                 dl_drl: &pt.dl_drl,
+                corr: corr_lin.as_ref(),
             };
             let rho = block_curvatures(&mut op, &lay.offsets, &r)?;
             let mut accepted = None;
@@ -401,6 +579,7 @@ impl Evaluator {
                     lin: &mut lin,
                     lay: &lay,
                     dl_drl: &pt.dl_drl,
+                    corr: corr_lin.as_ref(),
                 };
                 let delta = damped_cgls(&mut op, &lambda, &r, opts.cg_iterations)?;
                 let trial: Vec<f64> = beta.iter().zip(&delta).map(|(b, d)| b + d).collect();
@@ -432,6 +611,84 @@ impl Evaluator {
         lay.write(self, &beta, params);
         rep.rms = (pt.f / nv).sqrt();
         Ok(rep)
+    }
+
+    /// The directional derivative `J d = ∂x/∂β · d` that [`Evaluator::refine_beta`] linearizes
+    /// with: `x(β) = g(RL(β), RA(β), B_S(α))` at `params` (rigid placement ignored, gauge of the
+    /// rest shape, as [`Evaluator::pose`] without its rigid motion), with the correction MLP's
+    /// Jacobian when `correction` (#V × 3, metres per unit of `d`). `direction` holds the
+    /// β direction per block (blocks it lacks are 0; α is ignored). Exposed for checks against
+    /// finite differences of [`Evaluator::pose`].
+    ///
+    /// # Errors
+    /// A degenerate rest shape or a failing g solve at `params`.
+    pub fn vertex_jacobian_product(
+        &mut self,
+        params: &Params,
+        correction: bool,
+        direction: &Params,
+    ) -> Result<Vec<V3>> {
+        let correction = correction && self.model.correction.is_some();
+        let rest = self.model.rest_shape(&params.alpha);
+        let rg = RestGeometry::new(&self.topo, &rest)?;
+        let gauge = self.rec.gauge_from(&rest)?;
+        let lay = Layout::new(self);
+        let model = self.model.clone();
+        let pt = self.gn_point(params, correction, &rg, &gauge, &rest)?;
+        let mut lin = self.rec.linearize(&self.ws, &pt.lengths, &pt.angles)?;
+        let corr = if correction {
+            CorrectionLin::new(&model, &lay, params)
+        } else {
+            None
+        };
+        let d = lay.flatten(self, direction);
+        let mut out = vec![[0.0; 3]; self.topo.n_vertices];
+        self.gn_apply(&mut lin, &lay, &pt.dl_drl, corr.as_ref(), &d, &mut out)?;
+        Ok(out)
+    }
+
+    /// The adjoint of [`Evaluator::vertex_jacobian_product`]: `Jᵀ u` for a vertex covector `u`
+    /// (#V × 3), as β per block (α and the rigid placement 0). `⟨J d, u⟩ = ⟨d, Jᵀ u⟩` is what the
+    /// encoder's CGLS relies on.
+    ///
+    /// # Errors
+    /// As [`Evaluator::vertex_jacobian_product`], and a `u` of the wrong length.
+    pub fn vertex_jacobian_transpose_product(
+        &mut self,
+        params: &Params,
+        correction: bool,
+        u: &[V3],
+    ) -> Result<Params> {
+        if u.len() != self.topo.n_vertices {
+            return Err(ModelError::Invalid(format!(
+                "covector has {} vertices, the model has {}",
+                u.len(),
+                self.topo.n_vertices
+            )));
+        }
+        let correction = correction && self.model.correction.is_some();
+        let rest = self.model.rest_shape(&params.alpha);
+        let rg = RestGeometry::new(&self.topo, &rest)?;
+        let gauge = self.rec.gauge_from(&rest)?;
+        let lay = Layout::new(self);
+        let model = self.model.clone();
+        let pt = self.gn_point(params, correction, &rg, &gauge, &rest)?;
+        let mut lin = self.rec.linearize(&self.ws, &pt.lengths, &pt.angles)?;
+        let corr = if correction {
+            CorrectionLin::new(&model, &lay, params)
+        } else {
+            None
+        };
+        let mut g = vec![0.0; lay.len()];
+        self.gn_apply_t(&mut lin, &lay, &pt.dl_drl, corr.as_ref(), u, &mut g)?;
+        let mut out = Params {
+            alpha: vec![0.0; params.alpha.len()],
+            ..params.clone()
+        };
+        out.translation = [0.0; 3];
+        out.rotation = [0.0; 3];
+        lay.write(self, &g, &mut out);
+        Ok(out)
     }
 
     /// [`Evaluator::encode`] followed by [`Evaluator::refine_beta`]: the parameters whose posed
