@@ -29,6 +29,7 @@
 
 use super::{Evaluator, Params, Quantity};
 use crate::error::{ModelError, Result};
+use faer::Par;
 use panoman_mesh::align::rigid_align;
 use panoman_mesh::geom::{V3, sub};
 use panoman_mesh::rla::MIN_RELATIVE_LENGTH;
@@ -123,6 +124,20 @@ impl Layout {
     }
 }
 
+/// `A x` in f32 (faer's product, `par` threads).
+fn matvec(a: faer::MatRef<'_, f32>, x: &[f32], par: Par) -> Vec<f32> {
+    let mut y = vec![0.0f32; a.nrows()];
+    faer::linalg::matmul::matmul(
+        faer::MatMut::from_column_major_slice_mut(&mut y, a.nrows(), 1),
+        faer::Accum::Replace,
+        a,
+        faer::MatRef::from_column_major_slice(x, x.len(), 1),
+        1.0,
+        par,
+    );
+    y
+}
+
 /// The correction MLP linearized at one β (docs/design/splocs-model.md §5.4, §8):
 /// `δR = (P G δx) ⊘ w` on the body columns (RL then RA), with `x` the MLP's input (β_LB, β_AB
 /// without their mean coefficients), `G = ∂codes/∂x` (rank × #x, dense, f32) and the PCA head's
@@ -162,27 +177,9 @@ impl<'a> CorrectionLin<'a> {
 
     /// `dl += δR_RL`, `da += δR_RA` for the flat β direction `d`.
     fn apply(&self, d: &[f64], dl: &mut [f64], da: &mut [f64]) {
-        use faer::{Accum, Par, linalg::matmul::matmul};
         let x: Vec<f32> = self.inputs.iter().map(|&i| d[i] as f32).collect();
-        let mut c = vec![0.0f32; self.g.nrows()];
-        matmul(
-            faer::MatMut::from_column_major_slice_mut(&mut c, self.g.nrows(), 1),
-            Accum::Replace,
-            self.g.as_ref(),
-            faer::MatRef::from_column_major_slice(&x, x.len(), 1),
-            1.0,
-            Par::Seq,
-        );
-        let dim = self.head.dim();
-        let mut y = vec![0.0f32; dim];
-        matmul(
-            faer::MatMut::from_column_major_slice_mut(&mut y, dim, 1),
-            Accum::Replace,
-            self.head.basis(),
-            faer::MatRef::from_column_major_slice(&c, c.len(), 1),
-            1.0,
-            Par::rayon(0),
-        );
+        let c = matvec(self.g.as_ref(), &x, Par::Seq);
+        let y = matvec(self.head.basis(), &c, Par::rayon(0));
         for (j, (&e, (&v, &w))) in self
             .edges
             .iter()
@@ -196,7 +193,6 @@ impl<'a> CorrectionLin<'a> {
 
     /// `out[β] += ∂R/∂βᵀ (gl, ga)` (covectors on the edges' RL and RA).
     fn apply_t(&self, gl: &[f64], ga: &[f64], out: &mut [f64]) {
-        use faer::{Accum, Par, linalg::matmul::matmul};
         let u: Vec<f32> = self
             .edges
             .iter()
@@ -207,26 +203,8 @@ impl<'a> CorrectionLin<'a> {
                 src[e as usize] as f32 / w
             })
             .collect();
-        let rank = self.g.nrows();
-        let mut c = vec![0.0f32; rank];
-        matmul(
-            faer::MatMut::from_column_major_slice_mut(&mut c, rank, 1),
-            Accum::Replace,
-            self.head.basis().transpose(),
-            faer::MatRef::from_column_major_slice(&u, u.len(), 1),
-            1.0,
-            Par::rayon(0),
-        );
-        let nx = self.g.ncols();
-        let mut x = vec![0.0f32; nx];
-        matmul(
-            faer::MatMut::from_column_major_slice_mut(&mut x, nx, 1),
-            Accum::Replace,
-            self.g.as_ref().transpose(),
-            faer::MatRef::from_column_major_slice(&c, rank, 1),
-            1.0,
-            Par::Seq,
-        );
+        let c = matvec(self.head.basis().transpose(), &u, Par::rayon(0));
+        let x = matvec(self.g.as_ref().transpose(), &c, Par::Seq);
         for (&i, &v) in self.inputs.iter().zip(&x) {
             out[i] += f64::from(v);
         }
@@ -613,6 +591,31 @@ impl Evaluator {
         Ok(rep)
     }
 
+    /// What [`Evaluator::vertex_jacobian_product`] and its transpose linearize: the layout,
+    /// the g point at `params` (gauge of its rest shape), g's linearization there and, with
+    /// `correction` and a correction MLP, the correction's (borrowing `model`, this
+    /// evaluator's model).
+    fn linearization_at<'m>(
+        &mut self,
+        model: &'m super::PanoManModel,
+        params: &Params,
+        correction: bool,
+    ) -> Result<(Layout, Point, GLinearization, Option<CorrectionLin<'m>>)> {
+        let correction = correction && model.correction.is_some();
+        let rest = model.rest_shape(&params.alpha);
+        let rg = RestGeometry::new(&self.topo, &rest)?;
+        let gauge = self.rec.gauge_from(&rest)?;
+        let lay = Layout::new(self);
+        let pt = self.gn_point(params, correction, &rg, &gauge, &rest)?;
+        let lin = self.rec.linearize(&self.ws, &pt.lengths, &pt.angles)?;
+        let corr = if correction {
+            CorrectionLin::new(model, &lay, params)
+        } else {
+            None
+        };
+        Ok((lay, pt, lin, corr))
+    }
+
     /// The directional derivative `J d = ∂x/∂β · d` that [`Evaluator::refine_beta`] linearizes
     /// with: `x(β) = g(RL(β), RA(β), B_S(α))` at `params` (rigid placement ignored, gauge of the
     /// rest shape, as [`Evaluator::pose`] without its rigid motion), with the correction MLP's
@@ -628,19 +631,8 @@ impl Evaluator {
         correction: bool,
         direction: &Params,
     ) -> Result<Vec<V3>> {
-        let correction = correction && self.model.correction.is_some();
-        let rest = self.model.rest_shape(&params.alpha);
-        let rg = RestGeometry::new(&self.topo, &rest)?;
-        let gauge = self.rec.gauge_from(&rest)?;
-        let lay = Layout::new(self);
         let model = self.model.clone();
-        let pt = self.gn_point(params, correction, &rg, &gauge, &rest)?;
-        let mut lin = self.rec.linearize(&self.ws, &pt.lengths, &pt.angles)?;
-        let corr = if correction {
-            CorrectionLin::new(&model, &lay, params)
-        } else {
-            None
-        };
+        let (lay, pt, mut lin, corr) = self.linearization_at(&model, params, correction)?;
         let d = lay.flatten(self, direction);
         let mut out = vec![[0.0; 3]; self.topo.n_vertices];
         self.gn_apply(&mut lin, &lay, &pt.dl_drl, corr.as_ref(), &d, &mut out)?;
@@ -666,19 +658,8 @@ impl Evaluator {
                 self.topo.n_vertices
             )));
         }
-        let correction = correction && self.model.correction.is_some();
-        let rest = self.model.rest_shape(&params.alpha);
-        let rg = RestGeometry::new(&self.topo, &rest)?;
-        let gauge = self.rec.gauge_from(&rest)?;
-        let lay = Layout::new(self);
         let model = self.model.clone();
-        let pt = self.gn_point(params, correction, &rg, &gauge, &rest)?;
-        let mut lin = self.rec.linearize(&self.ws, &pt.lengths, &pt.angles)?;
-        let corr = if correction {
-            CorrectionLin::new(&model, &lay, params)
-        } else {
-            None
-        };
+        let (lay, pt, mut lin, corr) = self.linearization_at(&model, params, correction)?;
         let mut g = vec![0.0; lay.len()];
         self.gn_apply_t(&mut lin, &lay, &pt.dl_drl, corr.as_ref(), u, &mut g)?;
         let mut out = Params {
