@@ -91,10 +91,7 @@ struct Layout {
 }
 
 impl Layout {
-    fn new(ev: &Evaluator) -> Self {
-        Self::of_model(&ev.model)
-    }
-    fn of_model(model: &super::PanoManModel) -> Self {
+    fn new(model: &super::PanoManModel) -> Self {
         let mut offsets = vec![0];
         for b in &model.blocks {
             offsets.push(offsets.last().unwrap() + b.n_components());
@@ -104,18 +101,15 @@ impl Layout {
     fn len(&self) -> usize {
         *self.offsets.last().unwrap()
     }
-    fn flatten(&self, ev: &Evaluator, p: &Params) -> Vec<f64> {
-        self.flatten_model(&ev.model, p)
-    }
-    fn flatten_model(&self, model: &super::PanoManModel, p: &Params) -> Vec<f64> {
+    fn flatten(&self, model: &super::PanoManModel, p: &Params) -> Vec<f64> {
         let mut out = Vec::with_capacity(self.len());
         for b in &model.blocks {
             out.extend(p.beta_of(&b.name, b.n_components()));
         }
         out
     }
-    fn write(&self, ev: &Evaluator, beta: &[f64], p: &mut Params) {
-        for (i, b) in ev.model.blocks.iter().enumerate() {
+    fn write(&self, model: &super::PanoManModel, beta: &[f64], p: &mut Params) {
+        for (i, b) in model.blocks.iter().enumerate() {
             p.beta.insert(
                 b.name.clone(),
                 beta[self.offsets[i]..self.offsets[i + 1]].to_vec(),
@@ -222,9 +216,9 @@ impl super::PanoManModel {
         params: &Params,
         direction: &Params,
     ) -> Option<Vec<f64>> {
-        let lay = Layout::of_model(self);
+        let lay = Layout::new(self);
         let c = CorrectionLin::new(self, &lay, params)?;
-        let d = lay.flatten_model(self, direction);
+        let d = lay.flatten(self, direction);
         let ne = self.n_edges();
         let (mut dl, mut da) = (vec![0.0; ne], vec![0.0; ne]);
         c.apply(&d, &mut dl, &mut da);
@@ -276,14 +270,18 @@ impl LinearOperator for GnOperator<'_> {
 
 /// The curvature scale of `JᵀJ` per block of unknowns: for block `b` (unknowns
 /// `offsets[b]..offsets[b+1]`), `ρ_b = ‖J g_b‖² / ‖g_b‖²`, the Rayleigh quotient along the
-/// block's part `g_b` of the gradient `g = Jᵀ r` (one product per block; 0 where `g_b = 0`).
+/// block's part `g_b` of the gradient `g = Jᵀ r` (given; `m` rows of `J`; one product per
+/// block; 0 where `g_b = 0`).
 /// Blocks move very different vertex sets (a body component moves a limb, a face component a
 /// few millimetres of lip), so one damping for all would freeze the small ones.
-fn block_curvatures(op: &mut dyn LinearOperator, offsets: &[usize], r: &[f64]) -> Result<Vec<f64>> {
-    let n = *offsets.last().unwrap_or(&0);
-    let mut g = vec![0.0; n];
-    op.apply_t(r, &mut g)?;
-    let mut q = vec![0.0; r.len()];
+fn block_curvatures(
+    op: &mut dyn LinearOperator,
+    offsets: &[usize],
+    g: &[f64],
+    m: usize,
+) -> Result<Vec<f64>> {
+    let n = g.len();
+    let mut q = vec![0.0; m];
     let mut out = Vec::with_capacity(offsets.len().saturating_sub(1));
     for w in offsets.windows(2) {
         let mut gb = vec![0.0; n];
@@ -301,19 +299,20 @@ fn block_curvatures(op: &mut dyn LinearOperator, offsets: &[usize], r: &[f64]) -
 
 /// Damped CGLS (a Levenberg–Marquardt step): `min_δ ‖J δ − r‖² + Σ_j λ_j δ_j²` from δ = 0 by
 /// at most `iters` conjugate-gradient iterations on the normal equations
-/// `(JᵀJ + diag λ) δ = Jᵀ r`, each one product `J p` and one `Jᵀ s`. Stops early when the
+/// `(JᵀJ + diag λ) δ = Jᵀ r`, each one product `J p` and one `Jᵀ s`; `g0 = Jᵀ r` is given (it
+/// is the same for every trial on one linearization). Stops early when the
 /// normal-equation residual has fallen by 10¹⁰ (in norm).
 fn damped_cgls(
     op: &mut dyn LinearOperator,
     lambda: &[f64],
     r0: &[f64],
+    g0: &[f64],
     iters: usize,
 ) -> Result<Vec<f64>> {
     let n = lambda.len();
     let mut res = r0.to_vec();
     let mut delta = vec![0.0; n];
-    let mut s = vec![0.0; n];
-    op.apply_t(&res, &mut s)?;
+    let mut s = g0.to_vec();
     let mut p = s.clone();
     let mut gamma: f64 = s.iter().map(|v| v * v).sum();
     let gamma0 = gamma;
@@ -514,7 +513,7 @@ impl Evaluator {
         let rest = self.model.rest_shape(&params.alpha);
         let rg = RestGeometry::new(&self.topo, &rest)?;
         let gauge = self.rec.gauge_from(&rest)?;
-        let lay = Layout::new(self);
+        let lay = Layout::new(&self.model);
         let nv = mesh.len() as f64;
         let model = self.model.clone();
         let mut pt = self.gn_point(params, correction, &rg, &gauge, mesh)?;
@@ -523,7 +522,7 @@ impl Evaluator {
             g_solves: 1,
             ..GnReport::default()
         };
-        let mut beta = lay.flatten(self, params);
+        let mut beta = lay.flatten(&self.model, params);
         let mut mu = opts.damping;
         'outer: for _ in 0..opts.max_iterations {
             // The workspace holds the accepted point's g solution (its last solve).
@@ -531,7 +530,7 @@ impl Evaluator {
             let r = Self::gn_residual(&pt);
             let corr_lin = if correction && opts.correction_jacobian {
                 let mut cur = params.clone();
-                lay.write(self, &beta, &mut cur);
+                lay.write(&self.model, &beta, &mut cur);
                 CorrectionLin::new(&model, &lay, &cur)
             } else {
                 None
@@ -543,7 +542,10 @@ impl Evaluator {
                 dl_drl: &pt.dl_drl,
                 corr: corr_lin.as_ref(),
             };
-            let rho = block_curvatures(&mut op, &lay.offsets, &r)?;
+            // The gradient Jᵀ r and the block curvatures: once per linearization.
+            let mut g = vec![0.0; lay.len()];
+            op.apply_t(&r, &mut g)?;
+            let rho = block_curvatures(&mut op, &lay.offsets, &g, r.len())?;
             let mut accepted = None;
             for _ in 0..=opts.max_rejections {
                 let lambda: Vec<f64> = lay
@@ -559,10 +561,10 @@ impl Evaluator {
                     dl_drl: &pt.dl_drl,
                     corr: corr_lin.as_ref(),
                 };
-                let delta = damped_cgls(&mut op, &lambda, &r, opts.cg_iterations)?;
+                let delta = damped_cgls(&mut op, &lambda, &r, &g, opts.cg_iterations)?;
                 let trial: Vec<f64> = beta.iter().zip(&delta).map(|(b, d)| b + d).collect();
                 let mut p = params.clone();
-                lay.write(self, &trial, &mut p);
+                lay.write(&self.model, &trial, &mut p);
                 rep.g_solves += 1;
                 // A failing g solve at a trial step counts as no decrease.
                 if let Ok(np) = self.gn_point(&p, correction, &rg, &gauge, mesh)
@@ -586,7 +588,7 @@ impl Evaluator {
                 break;
             }
         }
-        lay.write(self, &beta, params);
+        lay.write(&self.model, &beta, params);
         rep.rms = (pt.f / nv).sqrt();
         Ok(rep)
     }
@@ -605,7 +607,7 @@ impl Evaluator {
         let rest = model.rest_shape(&params.alpha);
         let rg = RestGeometry::new(&self.topo, &rest)?;
         let gauge = self.rec.gauge_from(&rest)?;
-        let lay = Layout::new(self);
+        let lay = Layout::new(&self.model);
         let pt = self.gn_point(params, correction, &rg, &gauge, &rest)?;
         let lin = self.rec.linearize(&self.ws, &pt.lengths, &pt.angles)?;
         let corr = if correction {
@@ -633,7 +635,7 @@ impl Evaluator {
     ) -> Result<Vec<V3>> {
         let model = self.model.clone();
         let (lay, pt, mut lin, corr) = self.linearization_at(&model, params, correction)?;
-        let d = lay.flatten(self, direction);
+        let d = lay.flatten(&self.model, direction);
         let mut out = vec![[0.0; 3]; self.topo.n_vertices];
         self.gn_apply(&mut lin, &lay, &pt.dl_drl, corr.as_ref(), &d, &mut out)?;
         Ok(out)
@@ -668,7 +670,7 @@ impl Evaluator {
         };
         out.translation = [0.0; 3];
         out.rotation = [0.0; 3];
-        lay.write(self, &g, &mut out);
+        lay.write(&self.model, &g, &mut out);
         Ok(out)
     }
 
@@ -753,7 +755,7 @@ mod tests {
         let mut g = vec![0.0; n];
         op.apply_t(&r, &mut g).unwrap();
         // Block curvatures: the Rayleigh quotient of JᵀJ along each block's gradient part.
-        let rho = block_curvatures(&mut op, &offsets, &r).unwrap();
+        let rho = block_curvatures(&mut op, &offsets, &g, m).unwrap();
         for (b, w) in offsets.windows(2).enumerate() {
             let mut gb = vec![0.0; n];
             gb[w[0]..w[1]].copy_from_slice(&g[w[0]..w[1]]);
@@ -779,7 +781,7 @@ mod tests {
             }
             let exact = solve_spd(k, g.clone(), n);
             // In exact arithmetic CG ends after n iterations; 4n allow for rounding.
-            let got = damped_cgls(&mut op, &lambda, &r, 4 * n).unwrap();
+            let got = damped_cgls(&mut op, &lambda, &r, &g, 4 * n).unwrap();
             let scale = exact.iter().fold(0.0f64, |s, v| s.max(v.abs()));
             for (x, y) in got.iter().zip(&exact) {
                 assert!(
