@@ -364,7 +364,10 @@ fn encoder_linearization_matches_finite_differences() {
     // h = 1e-3 the central difference is exact up to f32 rounding of R (|R| ε₃₂ / h ≈ 1e-4 |R|
     // per entry) unless a unit changes sign inside ±h; 1 % of ‖J d‖ bounds both.
     let h = 1e-3;
-    let jd = model.correction_jacobian_product(&p, &dir).unwrap();
+    let jd = model
+        .correction_jacobian_product(&p, &dir)
+        .unwrap()
+        .unwrap();
     let rp = model.correction_residual(&shifted(h)).unwrap();
     let rm = model.correction_residual(&shifted(-h)).unwrap();
     let fd: Vec<f64> = rp
@@ -441,4 +444,15 @@ fn encoder_linearization_matches_finite_differences() {
             "correction {corr}: <J d, u> = {lhs}, <d, J^T u> = {rhs}"
         );
     }
+    // 4. A direction with an unknown block or a block of the wrong length is an error, not a
+    // silent zero.
+    let mut bad = dir.clone();
+    bad.beta.get_mut("body_l").unwrap().pop();
+    let e = ev.vertex_jacobian_product(&p, true, &bad).unwrap_err();
+    assert!(e.to_string().contains("body_l"), "{e}");
+    assert!(model.correction_jacobian_product(&p, &bad).is_err());
+    let mut unknown = dir.clone();
+    unknown.beta.insert("tail_l".into(), vec![1.0]);
+    let e = ev.vertex_jacobian_product(&p, false, &unknown).unwrap_err();
+    assert!(e.to_string().contains("tail_l"), "{e}");
 }

@@ -101,6 +101,28 @@ impl Layout {
     fn len(&self) -> usize {
         *self.offsets.last().unwrap()
     }
+    /// [`Layout::flatten`] of a direction given by a caller: every block it names must be one
+    /// of the model's, with the model's component count.
+    fn flatten_checked(&self, model: &super::PanoManModel, p: &Params) -> Result<Vec<f64>> {
+        for (name, v) in &p.beta {
+            match model.blocks.iter().find(|b| &b.name == name) {
+                Some(b) if b.n_components() == v.len() => {}
+                Some(b) => {
+                    return Err(ModelError::Invalid(format!(
+                        "direction block {name} has {} coefficients, the model's has {}",
+                        v.len(),
+                        b.n_components()
+                    )));
+                }
+                None => {
+                    return Err(ModelError::Invalid(format!(
+                        "direction block {name} is not a block of the model"
+                    )));
+                }
+            }
+        }
+        Ok(self.flatten(model, p))
+    }
     fn flatten(&self, model: &super::PanoManModel, p: &Params) -> Vec<f64> {
         let mut out = Vec::with_capacity(self.len());
         for b in &model.blocks {
@@ -209,20 +231,25 @@ impl super::PanoManModel {
     /// The correction residual's directional derivative `∂R/∂β · d` at `params`
     /// ([`PanoManModel::correction_residual`]'s layout: the body columns, RL then RA), as the
     /// vertex-error encoder linearizes it (docs/design/splocs-model.md §8); `direction` holds
-    /// the β direction per block. `None` without a correction MLP. Exposed for checks against
-    /// finite differences.
+    /// the β direction per block (blocks it lacks are 0). `None` without a correction MLP.
+    /// Exposed for checks against finite differences.
+    ///
+    /// # Errors
+    /// A direction block the model does not have, or with the wrong number of coefficients.
     pub fn correction_jacobian_product(
         &self,
         params: &Params,
         direction: &Params,
-    ) -> Option<Vec<f64>> {
+    ) -> Result<Option<Vec<f64>>> {
         let lay = Layout::new(self);
-        let c = CorrectionLin::new(self, &lay, params)?;
-        let d = lay.flatten(self, direction);
+        let d = lay.flatten_checked(self, direction)?;
+        let Some(c) = CorrectionLin::new(self, &lay, params) else {
+            return Ok(None);
+        };
         let ne = self.n_edges();
         let (mut dl, mut da) = (vec![0.0; ne], vec![0.0; ne]);
         c.apply(&d, &mut dl, &mut da);
-        Some(
+        Ok(Some(
             c.edges
                 .iter()
                 .enumerate()
@@ -234,7 +261,7 @@ impl super::PanoManModel {
                     }
                 })
                 .collect(),
-        )
+        ))
     }
 }
 
@@ -626,7 +653,8 @@ impl Evaluator {
     /// finite differences of [`Evaluator::pose`].
     ///
     /// # Errors
-    /// A degenerate rest shape or a failing g solve at `params`.
+    /// A direction block the model does not have or of the wrong length, a degenerate rest
+    /// shape, a failing g solve at `params`.
     pub fn vertex_jacobian_product(
         &mut self,
         params: &Params,
@@ -635,7 +663,7 @@ impl Evaluator {
     ) -> Result<Vec<V3>> {
         let model = self.model.clone();
         let (lay, pt, mut lin, corr) = self.linearization_at(&model, params, correction)?;
-        let d = lay.flatten(&self.model, direction);
+        let d = lay.flatten_checked(&self.model, direction)?;
         let mut out = vec![[0.0; 3]; self.topo.n_vertices];
         self.gn_apply(&mut lin, &lay, &pt.dl_drl, corr.as_ref(), &d, &mut out)?;
         Ok(out)
