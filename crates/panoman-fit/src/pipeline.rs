@@ -10,7 +10,7 @@ use crate::fit::{
     Constraints, FitOptions, FitResult, Fitter, Init, Placement, Previous, warm_fit_options,
 };
 use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences_on};
-use crate::ik::{IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget};
+use crate::ik::{IkConfig, IkResult, IkSolver, IkStageReport, IkState, IkTargets, PointTarget};
 use crate::quality::Verdict;
 use crate::quality::{IkAttempt, QualityOptions, ik_group_residuals, phenotype_at_bounds};
 use panoman_human::assets::AssetDir;
@@ -130,7 +130,116 @@ pub fn ik_fit(ik: &IkSolver, c: &Constraints, cfg: &IkConfig) -> Result<IkResult
     }
     let targets = IkTargets::from_file(&c.keypoints)?;
     let r = ik.solve(&targets, cfg)?;
-    wide_continuation(ik, &targets, cfg, r)
+    let (r, wide) = wide_continuation(ik, &targets, cfg, r)?;
+    phenotype_polish(ik, &targets, cfg, wide, r)
+}
+
+/// The muscle × weight values of [`robust_ik`]'s retries and of the phenotype polish's starts.
+pub const MUSCLE_WEIGHT_STARTS: [(f64, f64); 4] = [(0.2, 0.2), (0.2, 0.8), (0.8, 0.2), (0.8, 0.8)];
+
+/// The age steps of the phenotype polish's starts: each is combined with every
+/// [`MUSCLE_WEIGHT_STARTS`] pair (12 starts). A step of 0.2 crosses the age anchor at ⅓ or ⅔
+/// next to the solved value (the age cells of the phenotype grid, [`crate::ik`]).
+pub const POLISH_AGE_STEPS: [f64; 3] = [0.0, 0.2, -0.2];
+
+/// Phenotype polish of a cold keypoint solve ([`IkConfig::phenotype_polish`]): the final
+/// stage again, warm-started from the solved pose with the age moved by each of
+/// [`POLISH_AGE_STEPS`] (clamped to `[0, 1]`) and muscle × weight set to each of
+/// [`MUSCLE_WEIGHT_STARTS`] (the other values as solved). The 12 starts are screened in
+/// parallel with [`IkConfig::polish_screen_iterations`] iterations each; the one with the
+/// lowest objective `E` is continued to convergence and kept if its `E` is below the solve's
+/// own (a strict decrease: the result never gets worse by the objective).
+///
+/// Why: age, muscle and weight move the keypoints by a few millimetres at most, and the
+/// phenotype grid is multilinear per cell with kinks at its anchors (age ⅓, ⅔; muscle and
+/// weight ½), so the staged solve, which fits them while the pose is still far off, often
+/// ends in a wrong cell — measured on the stress set's composites from exact keypoints: the
+/// solve's `E` two to five times that of the same solve with the true phenotype held, body
+/// keypoints 1.2–1.8 mm off instead of 0.1 mm, body vertices 40–50 mm off. With the pose in
+/// place the cells' minima separate (docs/design/rig-and-ik.md §4.4.2). `wide` says whether `r`
+/// came from the wide-range continuation: the polish keeps its ranges, so that the
+/// objectives compare.
+fn phenotype_polish(
+    ik: &IkSolver,
+    targets: &IkTargets,
+    cfg: &IkConfig,
+    wide: bool,
+    r: IkResult,
+) -> Result<IkResult> {
+    if !cfg.fit_phenotype || !cfg.phenotype_polish || cfg.initial_state.is_some() {
+        return Ok(r);
+    }
+    let (ai, mi, wi) = (
+        phenotype_slot("age")?,
+        phenotype_slot("muscle")?,
+        phenotype_slot("weight")?,
+    );
+    let warm = |st: IkState, iterations: usize| IkConfig {
+        wide_ranges: wide || cfg.wide_ranges,
+        initial_state: Some(st),
+        max_iterations: iterations,
+        ..cfg.clone()
+    };
+    let starts: Vec<IkState> = POLISH_AGE_STEPS
+        .iter()
+        .flat_map(|&da| MUSCLE_WEIGHT_STARTS.iter().map(move |&mw| (da, mw)))
+        .map(|(da, (m, w))| {
+            let mut st = r.state.clone();
+            st.phenotype[ai] = (st.phenotype[ai] + da).clamp(0.0, 1.0);
+            st.phenotype[mi] = m;
+            st.phenotype[wi] = w;
+            st
+        })
+        .collect();
+    let t0 = std::time::Instant::now();
+    let screen = cfg.polish_screen_iterations.min(cfg.max_iterations);
+    let screened = starts
+        .into_par_iter()
+        .map(|st| ik.solve(targets, &warm(st, screen)))
+        .collect::<Result<Vec<_>>>()?;
+    let mut iterations: usize = screened.iter().map(|t| t.iterations).sum();
+    // The first of the lowest (deterministic on ties), if it is below the solve's own.
+    let best = screened
+        .into_iter()
+        .reduce(|b, t| if t.cost < b.cost { t } else { b })
+        .filter(|b| b.cost < r.cost);
+    let polished = match best {
+        Some(b) if screen < cfg.max_iterations => {
+            let done = ik.solve(targets, &warm(b.state, cfg.max_iterations))?;
+            iterations += done.iterations;
+            Some(done).filter(|d| d.cost < r.cost)
+        }
+        other => other,
+    };
+    let seconds = t0.elapsed().as_secs_f64();
+    let last = r.stages.last();
+    let report = IkStageReport {
+        name: "phenotype_polish",
+        n_variables: last.map_or(0, |s| s.n_variables),
+        n_targets: last.map_or(0, |s| s.n_targets),
+        n_points: 0,
+        iterations,
+        cost_before: r.cost,
+        cost_after: polished.as_ref().map_or(r.cost, |p| p.cost),
+        seconds,
+    };
+    let mut stages = r.stages.clone();
+    stages.push(report);
+    let (total_s, total_it) = (r.seconds + seconds, r.iterations + iterations);
+    Ok(IkResult {
+        seconds: total_s,
+        iterations: total_it,
+        stages,
+        ..polished.unwrap_or(r)
+    })
+}
+
+/// Index of a phenotype value in [`IkState::phenotype`].
+fn phenotype_slot(name: &str) -> Result<usize> {
+    crate::ik::IK_PHENOTYPE
+        .iter()
+        .position(|n| *n == name)
+        .ok_or_else(|| FitError::Invalid(format!("the IK fits no phenotype value `{name}`")))
 }
 
 /// Mean keypoint residual of a group (mm) above which [`ik_fit`] tries the wide ranges.
@@ -153,9 +262,9 @@ fn wide_continuation(
     targets: &IkTargets,
     cfg: &IkConfig,
     r: IkResult,
-) -> Result<IkResult> {
+) -> Result<(IkResult, bool)> {
     if cfg.wide_ranges || !r.group_mean_mm.iter().flatten().any(|&m| m > WIDE_RETRY_MM) {
-        return Ok(r);
+        return Ok((r, false));
     }
     let wide = IkConfig {
         wide_ranges: true,
@@ -164,13 +273,16 @@ fn wide_continuation(
     };
     let w = ik.solve(targets, &wide)?;
     if w.mean_residual_mm() < (1.0 - WIDE_RETRY_GAIN) * r.mean_residual_mm() {
-        Ok(IkResult {
-            seconds: r.seconds + w.seconds,
-            iterations: r.iterations + w.iterations,
-            ..w
-        })
+        Ok((
+            IkResult {
+                seconds: r.seconds + w.seconds,
+                iterations: r.iterations + w.iterations,
+                ..w
+            },
+            true,
+        ))
     } else {
-        Ok(r)
+        Ok((r, false))
     }
 }
 
@@ -540,7 +652,7 @@ fn retry_starts(cfg: &IkConfig) -> Vec<(String, IkConfig, bool)> {
             },
             true,
         ));
-        for (m, w) in [(0.2, 0.2), (0.2, 0.8), (0.8, 0.2), (0.8, 0.8)] {
+        for (m, w) in MUSCLE_WEIGHT_STARTS {
             let mut shape = cold.initial_shape.clone().unwrap_or_default();
             if let Some(v) = shape.phenotype.get_mut("muscle") {
                 *v = m;
