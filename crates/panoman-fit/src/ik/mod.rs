@@ -159,7 +159,7 @@ pub struct IkConfig {
     /// starts (age ±0.2 × muscle × weight ∈ {0.2, 0.8}², the solved pose) and keep the lowest
     /// objective (default true; `IkSolver::solve` itself does not polish). Measured on 10
     /// held-out people from exact keypoints: mean vertex error 7.35 → 4.50 mm, worst person
-    /// 18.9 → 6.3 mm, cold IK about 1.25× the time (docs/design/rig-and-ik.md §4.4.2).
+    /// 18.9 → 6.3 mm; the cold fit 1.56× the time (151 → 236 ms median) (docs/design/rig-and-ik.md §4.4.2).
     pub phenotype_polish: bool,
     /// Levenberg–Marquardt iterations of each polish start before the best one is continued
     /// to convergence (default 6; the same accuracy as 10 or 40 on the held-out people).
