@@ -164,17 +164,49 @@ fn gauss_newton_encoder_lowers_the_vertex_error_below_least_squares() {
              least-squares {e_ls} m ({rep:?})"
         );
         // The iteration is deterministic and monotone: a run cut after 2 accepted iterations
-        // is the same run's prefix, so it ends at an RMS no lower than the full run's.
-        let short = panoman_model::model::GnOptions {
-            max_iterations: 2,
+        // is the same run's prefix, so it ends at an RMS no lower than the full run's (one
+        // start: the second start of the corrected encoder is not a prefix of itself).
+        let one = panoman_model::model::GnOptions {
+            correction_two_start: false,
             ..opts
         };
+        let (_, rep1) = ev.encode_gn(&mesh, Some(&rest), corr, &one).unwrap();
+        let short = panoman_model::model::GnOptions {
+            max_iterations: 2,
+            ..one
+        };
         let (_, rep2) = ev.encode_gn(&mesh, Some(&rest), corr, &short).unwrap();
-        assert_eq!(rep2.rms_start, rep.rms_start);
+        assert_eq!(rep2.rms_start, rep1.rms_start);
         assert!(
-            rep2.iterations <= 2 && rep.rms <= rep2.rms,
-            "{rep2:?} vs {rep:?}"
+            rep2.iterations <= 2 && rep1.rms <= rep2.rms,
+            "{rep2:?} vs {rep1:?}"
         );
+        // The two-start encoder keeps the better of its starts, the first being the
+        // one-start run: never worse than it; without the correction the same run.
+        if corr {
+            assert!(rep.rms <= rep1.rms, "two starts {rep:?} vs one {rep1:?}");
+            // The returned β is the start whose RMS is reported.
+            let x = ev.pose(&gn, corr).unwrap();
+            let t = panoman_mesh::align::rigid_align(&x, &mesh, None);
+            let rms = (x
+                .iter()
+                .zip(&mesh)
+                .map(|(a, b)| {
+                    let d = panoman_mesh::geom::sub(t.apply(*a), *b);
+                    panoman_mesh::geom::dot(d, d)
+                })
+                .sum::<f64>()
+                / x.len() as f64)
+                .sqrt();
+            assert!(
+                (rms - rep.rms).abs() <= 1e-6 * rep.rms,
+                "returned β has RMS {rms}, reported {}",
+                rep.rms
+            );
+            assert!(rep.g_solves > rep1.g_solves, "{rep:?} vs {rep1:?}");
+        } else {
+            assert_eq!(rep, rep1);
+        }
     }
     // Through the library: the default encoder is the Gauss–Newton one and re-poses closer.
     let lib = panoman::Model::load(model_path).unwrap();

@@ -5,7 +5,7 @@
 //! `KIND=1 ROWS=40 CORR=0 GN_IT=10 GN_CG=25 GN_TOL=0.001 GN_MU=0.0001 GN_REJ=4 \
 //!  cargo run --release -p panoman --example repr_gn -- M.safetensors H`
 //!
-//! KIND 1 body, 2 face, 3 hands; unset options take `GnOptions::default()`. `SHOW_MM=60` lists
+//! KIND 1 body, 2 face, 3 hands; unset options take `GnOptions::default()` (`GN_TWO=0`: one start). `SHOW_MM=60` lists
 //! the worst vertices of rows whose max is above 60 mm, `DUMP=dir` also writes their truth and
 //! model vertices (`ROW_truth.xyz`, `ROW_model.xyz`, OBJ vertex lines).
 use panoman_human::assets::{AssetDir, default_dir};
@@ -57,6 +57,7 @@ fn main() {
         damping: env("GN_MU", d.damping),
         max_rejections: env("GN_REJ", d.max_rejections),
         correction_jacobian: env("GN_CJ", 0u8) == 1,
+        correction_two_start: env("GN_TWO", 1u8) == 1,
     };
     let groups: Vec<Vec<u32>> = match kind {
         2 => vec![regions.vertices_of(Part::Face)],

@@ -55,6 +55,10 @@ pub struct GnOptions {
     /// hold `R` fixed there, evaluating it only at the trial points (`false`, the default:
     /// measured better on held-out rows, docs/design/splocs-model.md §8).
     pub correction_jacobian: bool,
+    /// With the correction MLP: a second start — the same iteration first without the
+    /// correction, then with it from there — and the result with the lower error kept
+    /// (`true`, the default; docs/design/splocs-model.md §8). About 3× the cost of one start.
+    pub correction_two_start: bool,
 }
 
 impl Default for GnOptions {
@@ -68,6 +72,7 @@ impl Default for GnOptions {
             damping: 1e-4,
             max_rejections: 4,
             correction_jacobian: false,
+            correction_two_start: true,
         }
     }
 }
@@ -518,11 +523,41 @@ impl Evaluator {
     /// Refines `params.beta` (α and the rigid motion untouched) by Gauss–Newton on the vertex
     /// error of `g` against `mesh` (#V, template topology, metres) up to a rigid motion, see
     /// the module docs; with `correction`, the correction MLP's residual is part of the
-    /// model. Never raises the error: the returned β has `rms ≤ rms_start`.
+    /// model. Never raises the error: the returned β has `rms ≤ rms_start`. With the
+    /// correction and [`GnOptions::correction_two_start`], the iteration also runs from a
+    /// second start (the given β refined without the correction first) and the lower error of
+    /// the two is kept; the report then counts both starts' iterations and g solves.
     ///
     /// # Errors
     /// Size mismatches, a degenerate rest shape, a failing g solve at the start.
     pub fn refine_beta(
+        &mut self,
+        mesh: &[V3],
+        params: &mut Params,
+        correction: bool,
+        opts: &GnOptions,
+    ) -> Result<GnReport> {
+        if !(correction && opts.correction_two_start && self.model.correction.is_some()) {
+            return self.refine_beta_from(mesh, params, correction, opts);
+        }
+        let mut second = params.clone();
+        let a = self.refine_beta_from(mesh, params, true, opts)?;
+        let b0 = self.refine_beta_from(mesh, &mut second, false, opts)?;
+        let b = self.refine_beta_from(mesh, &mut second, true, opts)?;
+        let rep = GnReport {
+            iterations: a.iterations + b0.iterations + b.iterations,
+            rms_start: a.rms_start,
+            rms: a.rms.min(b.rms),
+            g_solves: a.g_solves + b0.g_solves + b.g_solves,
+        };
+        if b.rms < a.rms {
+            *params = second;
+        }
+        Ok(rep)
+    }
+
+    /// One start of [`Evaluator::refine_beta`].
+    fn refine_beta_from(
         &mut self,
         mesh: &[V3],
         params: &mut Params,
