@@ -5,7 +5,7 @@
 //! `KIND=1 ROWS=40 CORR=0 GN_IT=10 GN_CG=25 GN_TOL=0.001 GN_MU=0.0001 GN_REJ=4 \
 //!  cargo run --release -p panoman --example repr_gn -- M.safetensors H`
 //!
-//! KIND 1 body, 2 face, 3 hands; unset options take `GnOptions::default()` (`GN_TWO=0`: one start). `SHOW_MM=60` lists
+//! KIND 1 body, 2 face, 3 hands; unset options take `GnOptions::default()` (`GN_TWO=0`: one start); `PART=k/n` takes every n-th row from the k-th. `SHOW_MM=60` lists
 //! the worst vertices of rows whose max is above 60 mm, `DUMP=dir` also writes their truth and
 //! model vertices (`ROW_truth.xyz`, `ROW_model.xyz`, OBJ vertex lines).
 use panoman_human::assets::{AssetDir, default_dir};
@@ -76,6 +76,15 @@ fn main() {
     } else {
         (0..rows_n).map(|i| all[i * all.len() / rows_n]).collect()
     };
+    // PART=k/n: every n-th of those rows from the k-th (to split a run over processes).
+    let (k, n): (usize, usize) = std::env::var("PART")
+        .ok()
+        .and_then(|v| {
+            let (a, b) = v.split_once('/')?;
+            Some((a.parse().ok()?, b.parse().ok()?))
+        })
+        .unwrap_or((0, 1));
+    let rows: Vec<usize> = rows.into_iter().skip(k).step_by(n.max(1)).collect();
     let v3 = |r: usize| -> Vec<V3> {
         ds.vertices(r)
             .unwrap()
