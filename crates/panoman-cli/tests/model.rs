@@ -16,6 +16,22 @@ fn trained() -> (&'static PathBuf, &'static PathBuf) {
     (data, model)
 }
 
+/// The trained small model, an evaluator of it, and a held-out body row with its rest mesh.
+#[allow(clippy::type_complexity)]
+fn encoder_fixture() -> (
+    &'static Path,
+    std::sync::Arc<PanoManModel>,
+    Evaluator,
+    Vec<[f64; 3]>,
+    Vec<[f64; 3]>,
+) {
+    let (data, model_path) = trained();
+    let model = std::sync::Arc::new(PanoManModel::load(model_path).unwrap());
+    let ev = Evaluator::new(model.clone()).unwrap();
+    let (mesh, rest, _) = held_out_row(data);
+    (model_path, model, ev, mesh, rest)
+}
+
 fn held_out_row(data: &Path) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, u8) {
     let ds = panoman_human::dataset::Dataset::open(data).unwrap();
     let r = (0..ds.n_rows)
@@ -145,10 +161,7 @@ fn small_model_trains_poses_and_encodes() {
 
 #[test]
 fn gauss_newton_encoder_lowers_the_vertex_error_below_least_squares() {
-    let (data, model_path) = trained();
-    let model = std::sync::Arc::new(PanoManModel::load(model_path).unwrap());
-    let mut ev = Evaluator::new(model.clone()).unwrap();
-    let (mesh, rest, _) = held_out_row(data);
+    let (model_path, _, mut ev, mesh, rest) = encoder_fixture();
     let opts = panoman_model::model::GnOptions::default();
     for corr in [false, true] {
         let ls = ev.encode(&mesh, Some(&rest), corr).unwrap();
@@ -366,10 +379,7 @@ fn bad_model_params_and_meshes_give_clear_errors() {
 /// product `∂x/∂β·d` with and without it against `pose(β ± h d)`.
 #[test]
 fn encoder_linearization_matches_finite_differences() {
-    let (data, model_path) = trained();
-    let model = std::sync::Arc::new(PanoManModel::load(model_path).unwrap());
-    let mut ev = Evaluator::new(model.clone()).unwrap();
-    let (mesh, rest, _) = held_out_row(data);
+    let (_, model, mut ev, mesh, rest) = encoder_fixture();
     let mut p = ev.encode(&mesh, Some(&rest), true).unwrap();
     p.translation = [0.0; 3];
     p.rotation = [0.0; 3];

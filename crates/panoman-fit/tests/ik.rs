@@ -93,6 +93,15 @@ fn small_mesh(p: &GeneratorParams) -> Vec<[f64; 3]> {
     f.map.map(OutputTopology::Small, &posed.vertices)
 }
 
+/// Largest distance (m) between a result's mesh and the mesh its parameters generate.
+fn reproduction_error(r: &panoman_fit::ik::IkResult) -> f64 {
+    small_mesh(&r.params)
+        .iter()
+        .zip(&r.posed)
+        .map(|(a, b)| dist(*a, *b))
+        .fold(0.0, f64::max)
+}
+
 fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
@@ -242,12 +251,7 @@ fn recovers_generated_people_from_exact_keypoints() {
         assert_eq!(r.rest.len(), mesh.len());
         assert_eq!(r.residuals.len(), 127);
         // The returned parameters reproduce the returned mesh through the generator.
-        let again = small_mesh(&r.params);
-        let d = again
-            .iter()
-            .zip(&r.posed)
-            .map(|(a, b)| dist(*a, *b))
-            .fold(0.0, f64::max);
+        let d = reproduction_error(&r);
         assert!(d < 1e-9, "params do not reproduce the mesh: {d} m");
         let json = r.to_json(fx().generator.bone_names()).to_string();
         let parsed = fx().generator.parse_params(&json).unwrap();
@@ -645,12 +649,7 @@ fn the_phenotype_polish_leaves_wrong_phenotype_cells() {
         );
         assert!(body(&polished) <= 0.2, "person {i}: {} mm", body(&polished));
         // The polished parameters reproduce the polished mesh.
-        let again = small_mesh(&polished.params);
-        let d = again
-            .iter()
-            .zip(&polished.posed)
-            .map(|(a, b)| dist(*a, *b))
-            .fold(0.0, f64::max);
+        let d = reproduction_error(&polished);
         assert!(
             d < 1e-9,
             "person {i}: params do not reproduce the mesh: {d} m"

@@ -556,6 +556,17 @@ impl Evaluator {
         Ok(rep)
     }
 
+    /// An error naming `what` unless `n` is the model's vertex count.
+    fn check_vertex_count(&self, what: &str, n: usize) -> Result<()> {
+        if n == self.model.n_vertices {
+            return Ok(());
+        }
+        Err(ModelError::Invalid(format!(
+            "{what} has {n} vertices, the model has {}",
+            self.model.n_vertices
+        )))
+    }
+
     /// One start of [`Evaluator::refine_beta`].
     fn refine_beta_from(
         &mut self,
@@ -564,13 +575,7 @@ impl Evaluator {
         correction: bool,
         opts: &GnOptions,
     ) -> Result<GnReport> {
-        if mesh.len() != self.model.n_vertices {
-            return Err(ModelError::Invalid(format!(
-                "mesh has {} vertices, the model has {}",
-                mesh.len(),
-                self.model.n_vertices
-            )));
-        }
+        self.check_vertex_count("mesh", mesh.len())?;
         let correction = correction && self.model.correction.is_some();
         let rest = self.model.rest_shape(&params.alpha);
         let rg = RestGeometry::new(&self.topo, &rest)?;
@@ -716,13 +721,7 @@ impl Evaluator {
         correction: bool,
         u: &[V3],
     ) -> Result<Params> {
-        if u.len() != self.topo.n_vertices {
-            return Err(ModelError::Invalid(format!(
-                "covector has {} vertices, the model has {}",
-                u.len(),
-                self.topo.n_vertices
-            )));
-        }
+        self.check_vertex_count("covector", u.len())?;
         let model = self.model.clone();
         let (lay, pt, mut lin, corr) = self.linearization_at(&model, params, correction)?;
         let mut g = vec![0.0; lay.len()];
