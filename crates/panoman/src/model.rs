@@ -25,8 +25,10 @@ pub enum Encoder {
     LeastSquares,
     /// The least-squares β refined by damped Gauss–Newton (Levenberg–Marquardt, per-block
     /// damping) on the vertex error through `g` (docs/design/splocs-model.md §8): the model's
-    /// closest mesh up to a rigid motion. Costs 10–20 g solves and as many linearized solves
-    /// (2–9 s on the full template; 4 iterations with `VertexErrorWith` take about a third).
+    /// closest mesh up to a rigid motion. Costs up to 20 iterations per start (three runs
+    /// with the correction: `GnOptions::correction_two_start`), each one linearization and
+    /// one or more g solves: 10–40 s on the full template (measured 34.8 s with the
+    /// correction); `VertexErrorWith(GnOptions { max_iterations: 4, .. })` takes a fraction of it.
     #[default]
     VertexError,
     /// [`Encoder::VertexError`] with explicit iteration counts.

@@ -49,7 +49,8 @@ pub struct GnOptions {
     /// `λ_b = μ ρ_b`, `ρ_b` the curvature of `JᵀJ` along the block's gradient): divided by 3
     /// after an accepted step, multiplied by 8 (at least 10⁻⁶) after a rejected one.
     pub damping: f64,
-    /// Rejected trials (each one CGLS and one g solve) per linearization before giving up.
+    /// Rejected trials (each one CGLS and one g solve) per linearization before giving up
+    /// (10, the default, lets μ grow by 8¹⁰ ≈ 10⁹: a step taken at a tiny μ can need many).
     pub max_rejections: usize,
     /// With the correction MLP: put its Jacobian `∂R/∂β` into the linearization (`true`) or
     /// hold `R` fixed there, evaluating it only at the trial points (`false`, the default:
@@ -62,15 +63,17 @@ pub struct GnOptions {
 }
 
 impl Default for GnOptions {
-    /// 10 outer iterations, 25 CGLS iterations, 0.1 % relative decrease, μ₀ = 10⁻⁴, 4
-    /// rejections (docs/design/splocs-model.md §8: the measured choice).
+    /// 20 outer iterations, 25 CGLS iterations, 10⁻⁵ relative decrease, μ₀ = 10⁻⁴, 10
+    /// rejections (docs/design/splocs-model.md §8: the measured choice; the stop at 0.1 % and
+    /// 4 rejections before it ended some rows on a plateau where μ had grown, short of the
+    /// minimum the next iterations reach).
     fn default() -> Self {
         Self {
-            max_iterations: 10,
+            max_iterations: 20,
             cg_iterations: 25,
-            tolerance: 1e-3,
+            tolerance: 1e-5,
             damping: 1e-4,
-            max_rejections: 4,
+            max_rejections: 10,
             correction_jacobian: false,
             correction_two_start: true,
         }
