@@ -130,8 +130,8 @@ pub fn ik_fit(ik: &IkSolver, c: &Constraints, cfg: &IkConfig) -> Result<IkResult
     }
     let targets = IkTargets::from_file(&c.keypoints)?;
     let r = ik.solve(&targets, cfg)?;
-    let (r, wide) = wide_continuation(ik, &targets, cfg, r)?;
-    phenotype_polish(ik, &targets, cfg, wide, r)
+    let (r, ranges) = range_continuation(ik, &targets, cfg, r)?;
+    phenotype_polish(ik, &targets, cfg, ranges, r)
 }
 
 /// The muscle × weight values of [`robust_ik`]'s retries and of the phenotype polish's starts.
@@ -156,14 +156,14 @@ pub const POLISH_AGE_STEPS: [f64; 3] = [0.0, 0.2, -0.2];
 /// ends in a wrong cell — measured on the stress set's composites from exact keypoints: the
 /// solve's `E` two to five times that of the same solve with the true phenotype held, body
 /// keypoints 1.2–1.8 mm off instead of 0.1 mm, body vertices 40–50 mm off. With the pose in
-/// place the cells' minima separate (docs/design/rig-and-ik.md §4.4.2). `wide` says whether `r`
-/// came from the wide-range continuation: the polish keeps its ranges, so that the
-/// objectives compare.
+/// place the cells' minima separate (docs/design/rig-and-ik.md §4.4.2). `ranges`
+/// (`(wide_ranges, full_extension)`) are the ranges `r` was solved in (see
+/// [`range_continuation`]): the polish keeps them, so that the objectives compare.
 fn phenotype_polish(
     ik: &IkSolver,
     targets: &IkTargets,
     cfg: &IkConfig,
-    wide: bool,
+    ranges: (bool, bool),
     r: IkResult,
 ) -> Result<IkResult> {
     if !cfg.fit_phenotype || !cfg.phenotype_polish || cfg.initial_state.is_some() {
@@ -175,7 +175,8 @@ fn phenotype_polish(
         phenotype_slot("weight")?,
     );
     let warm = |st: IkState, iterations: usize| IkConfig {
-        wide_ranges: wide || cfg.wide_ranges,
+        wide_ranges: ranges.0,
+        full_extension: ranges.1,
         initial_state: Some(st),
         max_iterations: iterations,
         ..cfg.clone()
@@ -249,41 +250,65 @@ pub const WIDE_RETRY_MM: f64 = 1.0;
 /// be kept (against the bounded solve's).
 pub const WIDE_RETRY_GAIN: f64 = 0.25;
 
-/// Wide-range continuation: when a keypoint group is missed by more than [`WIDE_RETRY_MM`] on
-/// average, the solve is continued from its own result with the wide joint ranges
-/// ([`IkConfig::wide_ranges`]: arm twists ±180°, deeper hips, knees, shoulders; a warm start
-/// runs the final stage only, so the continuation stays in the bounded solve's basin and only
-/// moves the joints further), and kept when the mean keypoint residual drops by at least
-/// [`WIDE_RETRY_GAIN`]. This is how a forearm twist beyond the training sampler's ±30°, a
-/// crouch or a hand on the head reaches the rig without letting a cold solve wander into the
-/// wrong minima wide ranges open.
-fn wide_continuation(
+/// Range continuation: when a keypoint group is missed by more than [`WIDE_RETRY_MM`] on
+/// average, the solve is continued from its own result (a warm start runs the final stage
+/// only, so a continuation stays in the bounded solve's basin and only moves the joints
+/// further) with, in turn,
+///
+/// 1. the wide joint ranges ([`IkConfig::wide_ranges`]: arm twists ±180°, deeper hips, knees,
+///    shoulders) — how a forearm twist beyond the training sampler's ±30°, a crouch or a hand
+///    on the head reaches the rig;
+/// 2. if that is not kept or still misses a group, the sampler's ranges with elbows and knees
+///    free to straighten ([`IkConfig::full_extension`]) — how straight arms and legs (a
+///    T-pose, a standing person) reach it. Not part of 1: with the elbow's extension in the
+///    wide ranges, the 170° and 180° forearm twists of `panoman eval`'s stress set went to
+///    wrong minima (keypoints 0.06 → 5.0 mm off).
+///
+/// A continuation is kept when the mean keypoint residual drops by at least
+/// [`WIDE_RETRY_GAIN`] against the best so far; both start from the bounded solve, and the
+/// result's time and iterations count every solve tried. Returns the result and the ranges
+/// it was solved in (`(wide_ranges, full_extension)`), so that the phenotype polish keeps
+/// them and the objectives compare. This lets a cold solve reach those poses without
+/// wandering into the wrong minima wider ranges open.
+fn range_continuation(
     ik: &IkSolver,
     targets: &IkTargets,
     cfg: &IkConfig,
     r: IkResult,
-) -> Result<(IkResult, bool)> {
-    if cfg.wide_ranges || !r.group_mean_mm.iter().flatten().any(|&m| m > WIDE_RETRY_MM) {
-        return Ok((r, false));
+) -> Result<(IkResult, (bool, bool))> {
+    let misses = |r: &IkResult| r.group_mean_mm.iter().flatten().any(|&m| m > WIDE_RETRY_MM);
+    let own = (cfg.wide_ranges, cfg.full_extension);
+    if cfg.wide_ranges || !misses(&r) {
+        return Ok((r, own));
     }
-    let wide = IkConfig {
-        wide_ranges: true,
-        initial_state: Some(r.state.clone()),
-        ..cfg.clone()
-    };
-    let w = ik.solve(targets, &wide)?;
-    if w.mean_residual_mm() < (1.0 - WIDE_RETRY_GAIN) * r.mean_residual_mm() {
-        Ok((
-            IkResult {
-                seconds: r.seconds + w.seconds,
-                iterations: r.iterations + w.iterations,
-                ..w
-            },
-            true,
-        ))
-    } else {
-        Ok((r, false))
+    let (mut seconds, mut iterations) = (r.seconds, r.iterations);
+    let (mut best, mut ranges) = (r.clone(), own);
+    for (wide, full) in [(true, cfg.full_extension), (false, true)] {
+        if (wide, full) == own || (ranges != own && !misses(&best)) {
+            continue;
+        }
+        let c = IkConfig {
+            wide_ranges: wide,
+            full_extension: full,
+            initial_state: Some(r.state.clone()),
+            ..cfg.clone()
+        };
+        let w = ik.solve(targets, &c)?;
+        seconds += w.seconds;
+        iterations += w.iterations;
+        if w.mean_residual_mm() < (1.0 - WIDE_RETRY_GAIN) * best.mean_residual_mm() {
+            (best, ranges) = (w, (wide, full));
+        }
     }
+    // Time and iterations of the bounded solve and of every continuation tried.
+    Ok((
+        IkResult {
+            seconds,
+            iterations,
+            ..best
+        },
+        ranges,
+    ))
 }
 
 /// Controls of [`ik_icp`].
@@ -828,16 +853,19 @@ impl Sequence {
         self.previous = s.previous;
     }
 
-    /// `base` with [`Sequence::warm_ik_tolerance`] as its tolerance when the frame is warm
-    /// started: the IK settings of this sequence's frames, which an LBS tracker of the same
-    /// targets uses too so that both methods share the IK.
+    /// `base` with [`Sequence::warm_ik_tolerance`] as its tolerance (if set) and
+    /// [`IkConfig::full_extension`] when the frame is warm started (a limb straightened
+    /// since the previous frame must be reachable; a cold frame reaches it through the range
+    /// continuation of [`ik_fit`]): the IK settings of this sequence's frames, which an LBS
+    /// tracker of the same targets uses too so that both methods share the IK.
     pub fn ik_config(&self, base: &IkConfig, warm: bool) -> IkConfig {
-        match (warm, self.warm_ik_tolerance) {
-            (true, Some(tolerance)) => IkConfig {
-                tolerance,
-                ..base.clone()
-            },
-            _ => base.clone(),
+        if !warm {
+            return base.clone();
+        }
+        IkConfig {
+            tolerance: self.warm_ik_tolerance.unwrap_or(base.tolerance),
+            full_extension: true,
+            ..base.clone()
         }
     }
 

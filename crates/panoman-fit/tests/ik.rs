@@ -607,6 +607,97 @@ fn a_forearm_twist_beyond_the_sampler_is_reached_by_the_continuation() {
     assert!((twist - 150.0).abs() < 15.0, "lowerarm02.L twist {twist}°");
 }
 
+/// Straight arms and legs (a T-pose: the rig's elbows at −43°, knees at −10°, where the
+/// sampler's ranges stop at −35° and 0°, since the rig's rest limbs are bent): the bounded
+/// cold solve cannot straighten them and misses the body keypoints (it also drifts the
+/// phenotype to compensate); the wide continuation of `ik_fit` reaches them. A warm start
+/// from the same arms and legs bent (as a sequence's previous frame) reaches the straight
+/// limbs only with `IkConfig::full_extension` (what a sequence's warm frames use).
+#[test]
+fn straight_limbs_are_reached_cold_and_kept_warm() {
+    use panoman_human::keypoints::KeypointsFile;
+    let s = solver();
+    let g = &fx().generator;
+    let names = g.bone_names();
+    let bone = |n: &str| names.iter().position(|b| b == n).unwrap();
+    let mut truth = GeneratorParams::default();
+    truth.pose.euler_deg = vec![[0.0; 3]; names.len()];
+    for (side, z) in [("L", 45.0), ("R", -45.0)] {
+        truth.pose.euler_deg[bone(&format!("upperarm01.{side}"))] = [0.0, 0.0, z];
+        truth.pose.euler_deg[bone(&format!("lowerarm01.{side}"))] = [-43.0, 0.0, 0.0];
+        truth.pose.euler_deg[bone(&format!("lowerleg01.{side}"))] = [-10.0, 0.0, 0.0];
+    }
+    let mut bent = truth.clone();
+    for side in ["L", "R"] {
+        bent.pose.euler_deg[bone(&format!("lowerarm01.{side}"))] = [0.0, 0.0, 0.0];
+        bent.pose.euler_deg[bone(&format!("lowerleg01.{side}"))] = [20.0, 0.0, 0.0];
+    }
+    let mesh = small_mesh(&truth);
+    let kp = fx().small_set.evaluate(&mesh);
+    let targets = IkTargets::all(&kp).unwrap();
+    let body = |r: &panoman_fit::ik::IkResult| r.group_mean(KeypointGroup::Body).unwrap();
+    let previous = panoman_fit::ik_fit(
+        s,
+        &panoman_fit::Constraints {
+            keypoints: KeypointsFile::from_all(&fx().small_set.evaluate(&small_mesh(&bent))),
+            ..Default::default()
+        },
+        &IkConfig::default(),
+    )
+    .unwrap();
+    assert!(body(&previous) < 0.5, "bent: body {} mm", body(&previous));
+    let bounded = s.solve(&targets, &IkConfig::default()).unwrap();
+    assert!(
+        body(&bounded) > panoman_fit::pipeline::WIDE_RETRY_MM,
+        "bounded solve: body {} mm",
+        body(&bounded)
+    );
+    let c = panoman_fit::Constraints {
+        keypoints: KeypointsFile::from_all(&kp),
+        ..Default::default()
+    };
+    let r = panoman_fit::ik_fit(s, &c, &IkConfig::default()).unwrap();
+    let elbow = r.state.angles[bone("lowerarm01.L")][0].to_degrees();
+    let knee = r.state.angles[bone("lowerleg01.R")][0].to_degrees();
+    let (_, e_bounded) = vertex_errors(&bounded.posed, &mesh);
+    let (_, e) = vertex_errors(&r.posed, &mesh);
+    let warm = |full_extension| {
+        s.solve(
+            &targets,
+            &IkConfig {
+                initial_state: Some(previous.state.clone()),
+                full_extension,
+                ..IkConfig::default()
+            },
+        )
+        .unwrap()
+    };
+    let (kept, clamped) = (warm(true), warm(false));
+    eprintln!(
+        "straight limbs: bounded body {:.2} mm (vertices {e_bounded:.2} mm), continued {:.3} mm \
+         (vertices {e:.2} mm, elbow {elbow:.1}°, knee {knee:.1}°); warm with full extension \
+         {:.3} mm, without {:.2} mm",
+        body(&bounded),
+        body(&r),
+        body(&kept),
+        body(&clamped)
+    );
+    assert!(body(&r) < 0.5, "continued: body {} mm", body(&r));
+    assert!((elbow + 43.0).abs() < 3.0, "elbow {elbow}°");
+    assert!((knee + 10.0).abs() < 3.0, "knee {knee}°");
+    assert!(e * 3.0 < e_bounded, "vertices {e_bounded} → {e} mm");
+    assert!(
+        body(&kept) < 0.5,
+        "warm, full extension: {} mm",
+        body(&kept)
+    );
+    assert!(
+        body(&clamped) > panoman_fit::pipeline::WIDE_RETRY_MM,
+        "warm without full extension: {} mm",
+        body(&clamped)
+    );
+}
+
 /// The phenotype polish of `ik_fit` (`IkConfig::phenotype_polish`): never a higher objective
 /// than the plain solve, and on these people (where the staged solve ends in a wrong age,
 /// muscle or weight cell for four of eight: body keypoints 0.28–0.35 mm off) it reaches the

@@ -208,18 +208,29 @@ pub(super) struct Posable {
     /// Per axis `1/s²` with `s = max(|lo|, |hi|)` of the range (0 for an empty range): the
     /// prior measures each angle against the largest angle its range allows.
     pub(super) prior: [f64; 3],
+    /// The lower bound of the flexion axis (x) under [`super::IkConfig::full_extension`]
+    /// ([`ik_extension_limit`], radians): elbows and knees only.
+    pub(super) extension: Option<f64>,
     /// Per axis, the range (radians) and prior factor under [`super::IkConfig::wide_ranges`]
     /// ([`ik_wide_range`]); `None` where the sampler's range stands.
     pub(super) wide: [Option<([f64; 2], f64)>; 3],
 }
 
 impl Posable {
-    /// Range and prior factor of `axis` (the wide one when `wide` and the axis has one).
-    pub(super) fn axis(&self, axis: usize, wide: bool) -> ([f64; 2], f64) {
-        match self.wide[axis] {
-            Some(w) if wide => w,
+    /// Range and prior factor of `axis` under `cfg`: the wide one under
+    /// [`super::IkConfig::wide_ranges`] where the axis has one, else the sampler's; under
+    /// [`super::IkConfig::full_extension`] the lower flexion bound of an elbow or a knee then
+    /// moves down to the full extension ([`ik_extension_limit`]). The prior factor is the
+    /// range's own either way (the extension leaves `max(|lo|, |hi|)` unchanged).
+    pub(super) fn axis(&self, axis: usize, cfg: &super::IkConfig) -> ([f64; 2], f64) {
+        let (mut range, prior) = match self.wide[axis] {
+            Some(w) if cfg.wide_ranges => w,
             _ => (self.range[axis], self.prior[axis]),
+        };
+        if let Some(lo) = self.extension.filter(|_| axis == 0 && cfg.full_extension) {
+            range[0] = range[0].min(lo);
         }
+        (range, prior)
     }
 }
 
@@ -644,6 +655,33 @@ pub fn ik_wide_range(bone: &str) -> [Option<([f64; 2], f64)>; 3] {
     [left[0], m(left[1]), m(left[2])]
 }
 
+/// Lower bound of the elbow's flexion (`lowerarm01` x, degrees) at full extension. The rig's
+/// rest elbow is bent: its straight arm (shoulder, elbow and wrist joints on one line, e.g.
+/// the T-pose of a CMU BVH retargeted) is at about −43°, while the sampler's range
+/// ([`panoman_human::sampling::bone_range`]) stops at −35°, 8° short of straight. −50°
+/// allows a straight arm and about 7° of hyperextension.
+pub const ELBOW_EXTENSION_DEG: f64 = -50.0;
+
+/// Lower bound of the knee's flexion (`lowerleg01` x, degrees) at full extension: the rig's
+/// straight leg is at about −10° (its rest knee is bent), the sampler stops at 0°; −15°
+/// allows a straight leg and about 5° of hyperextension.
+pub const KNEE_EXTENSION_DEG: f64 = -15.0;
+
+/// The lower bound (degrees) of `bone`'s flexion axis at full extension — [`ELBOW_EXTENSION_DEG`]
+/// for `lowerarm01.L/R`, [`KNEE_EXTENSION_DEG`] for `lowerleg01.L/R` (the x axis is not
+/// mirrored on the right) — or `None` for other bones: the bounds under
+/// [`super::IkConfig::full_extension`].
+pub fn ik_extension_limit(bone: &str) -> Option<f64> {
+    let base = bone
+        .strip_suffix(".R")
+        .or_else(|| bone.strip_suffix(".L"))?;
+    match base {
+        "lowerarm01" => Some(ELBOW_EXTENSION_DEG),
+        "lowerleg01" => Some(KNEE_EXTENSION_DEG),
+        _ => None,
+    }
+}
+
 /// The posable bones of the sampler in `rig`, with their ranges in radians and prior
 /// factors (and the wide ones of [`ik_wide_range`]).
 ///
@@ -659,6 +697,7 @@ pub(super) fn posable_of(rig: &panoman_human::rig::Rig) -> Result<Vec<Posable>> 
             })?;
             let r = bone_range(name).expect("posable bones have ranges");
             let range = r.map(|a| a.map(f64::to_radians));
+            let extension = ik_extension_limit(name).map(f64::to_radians);
             let prior = range.map(|[lo, hi]| {
                 let s = lo.abs().max(hi.abs());
                 if lo < hi { 1.0 / (s * s) } else { 0.0 }
@@ -671,6 +710,7 @@ pub(super) fn posable_of(rig: &panoman_human::rig::Rig) -> Result<Vec<Posable>> 
                 slot,
                 range,
                 prior,
+                extension,
                 wide,
             })
         })

@@ -192,7 +192,7 @@ impl IkSolver {
         for p in &self.posable {
             let a = st.angles[p.rig];
             for k in 0..3 {
-                e += cfg.pose_prior * p.axis(k, cfg.wide_ranges).1 * a[k] * a[k];
+                e += cfg.pose_prior * p.axis(k, cfg).1 * a[k] * a[k];
             }
         }
         for &b in &st.phenotype {

@@ -107,7 +107,7 @@ mod solver;
 mod stages;
 mod targets;
 
-pub use keypoint_model::ik_wide_range;
+pub use keypoint_model::{ik_extension_limit, ik_wide_range};
 pub use solver::IkSolver;
 pub use targets::{IkTarget, IkTargets, PointTarget};
 
@@ -186,6 +186,13 @@ pub struct IkConfig {
     /// them only as a continuation from a bounded solve that misses its keypoints
     /// ([`crate::pipeline::ik_fit`]).
     pub wide_ranges: bool,
+    /// Let elbows and knees reach full extension (a straight limb and a few degrees beyond:
+    /// [`ik_extension_limit`]) where the sampler's ranges stop 8° (elbow) and 10° (knee)
+    /// short of straight (default false; the wide ranges always do). Warm-started frames of a
+    /// sequence use it ([`crate::pipeline::Sequence::ik_config`]): a cold solve that needs a
+    /// straight limb reaches it through the wide continuation, and the frames after it must
+    /// not be pulled back inside the sampler's range.
+    pub full_extension: bool,
 }
 
 impl Default for IkConfig {
@@ -207,6 +214,7 @@ impl Default for IkConfig {
             initial_shape: None,
             initial_state: None,
             wide_ranges: false,
+            full_extension: false,
         }
     }
 }

@@ -270,7 +270,7 @@ impl IkSolver {
                 continue;
             }
             for axis in 0..3 {
-                let ([lo, hi], prior) = p.axis(axis, config.wide_ranges);
+                let ([lo, hi], prior) = p.axis(axis, config);
                 if lo < hi {
                     vs.push(Var::Angle {
                         bone: p.rig,
