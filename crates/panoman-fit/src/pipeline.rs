@@ -131,7 +131,57 @@ pub fn ik_fit(ik: &IkSolver, c: &Constraints, cfg: &IkConfig) -> Result<IkResult
     let targets = IkTargets::from_file(&c.keypoints)?;
     let r = ik.solve(&targets, cfg)?;
     let (r, ranges) = range_continuation(ik, &targets, cfg, r)?;
-    phenotype_polish(ik, &targets, cfg, ranges, r)
+    let r = phenotype_polish(ik, &targets, cfg, ranges, r)?;
+    let cfg = IkConfig {
+        wide_ranges: ranges.0,
+        full_extension: ranges.1,
+        ..cfg.clone()
+    };
+    handle_pass(ik, &targets, c, &cfg, r)
+}
+
+/// The vertex handles of `c` as point targets of the IK ([`IkSolver::solve_with_points`],
+/// one vertex each, the handle's weight in keypoint units): the final stage again, warm from
+/// `r`, in the ranges `r` was solved in, with the keypoints and the handles. A handle on a
+/// part that no keypoint places — e.g. a heel or a toe, since TC-127's body stops at the
+/// ankles — then moves the rig (the foot's flexion) instead of only the shell fit's surface
+/// near it. Without handles `r` is returned as it is.
+fn handle_pass(
+    ik: &IkSolver,
+    targets: &IkTargets,
+    c: &Constraints,
+    cfg: &IkConfig,
+    r: IkResult,
+) -> Result<IkResult> {
+    if c.handles.is_empty() {
+        return Ok(r);
+    }
+    let points: Vec<PointTarget> = c
+        .handles
+        .iter()
+        .map(|h| PointTarget {
+            rows: vec![(h.vertex, 1.0)],
+            position: h.position,
+            weight: h.weight,
+            normal: None,
+        })
+        .collect();
+    let warm = IkConfig {
+        initial_state: Some(r.state.clone()),
+        ..cfg.clone()
+    };
+    let h = ik.solve_with_points(targets, &points, &warm)?;
+    let mut stages = r.stages.clone();
+    stages.extend(h.stages.iter().cloned().map(|mut s| {
+        s.name = "handles";
+        s
+    }));
+    Ok(IkResult {
+        seconds: r.seconds + h.seconds,
+        iterations: r.iterations + h.iterations,
+        stages,
+        ..h
+    })
 }
 
 /// The muscle × weight values of [`robust_ik`]'s retries and of the phenotype polish's starts.

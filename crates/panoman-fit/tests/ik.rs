@@ -698,6 +698,97 @@ fn straight_limbs_are_reached_cold_and_kept_warm() {
     );
 }
 
+/// Vertex handles reach the IK (`ik_fit`'s handle pass): a foot flexed 30° down and turned
+/// in is invisible to TC-127 (its body stops at the ankles), so the keypoints alone leave the
+/// foot near rest; three vertices of each foot as handles (big toe, small toe, heel; their
+/// true positions) recover its flexion and the mesh, cold and warm (the turn-in is split
+/// between the foot's axes differently but lands the vertices: 0.26 mm measured).
+#[test]
+fn foot_handles_place_the_feet() {
+    use panoman_fit::fit::VertexHandle;
+    use panoman_human::keypoints::KeypointsFile;
+    let s = solver();
+    let g = &fx().generator;
+    let names = g.bone_names();
+    let bone = |n: &str| names.iter().position(|b| b == n).unwrap();
+    let mut truth = GeneratorParams::default();
+    truth.pose.euler_deg = vec![[0.0; 3]; names.len()];
+    truth.pose.euler_deg[bone("foot.L")] = [30.0, 0.0, 10.0];
+    truth.pose.euler_deg[bone("foot.R")] = [25.0, 0.0, -10.0];
+    let mesh = small_mesh(&truth);
+    let rest = small_mesh(&GeneratorParams::default());
+    // The big toe, small toe (most forward medial / lateral) and heel (rearmost) vertex of
+    // each sole at rest, as `panoman_mocap::track::foot_points` picks them.
+    let low = rest.iter().map(|v| v[2]).fold(f64::INFINITY, f64::min);
+    let mut feet = Vec::new();
+    for side in [1.0, -1.0] {
+        let sole: Vec<usize> = (0..rest.len())
+            .filter(|&i| rest[i][0] * side > 0.0 && rest[i][2] < low + 0.03)
+            .collect();
+        let mid = sole.iter().map(|&i| rest[i][0].abs()).sum::<f64>() / sole.len() as f64;
+        let by = |keep: &dyn Fn(usize) -> bool, k: &dyn Fn(usize) -> f64| {
+            *sole
+                .iter()
+                .filter(|&&i| keep(i))
+                .min_by(|&&a, &&b| k(a).total_cmp(&k(b)))
+                .unwrap()
+        };
+        feet.push(by(&|i| rest[i][0].abs() < mid, &|i| rest[i][1]));
+        feet.push(by(&|i| rest[i][0].abs() >= mid, &|i| rest[i][1]));
+        feet.push(by(&|_| true, &|i| -rest[i][1]));
+    }
+    let keypoints = KeypointsFile::from_all(&fx().small_set.evaluate(&mesh));
+    let only = panoman_fit::Constraints {
+        keypoints: keypoints.clone(),
+        ..Default::default()
+    };
+    let with = panoman_fit::Constraints {
+        handles: feet
+            .iter()
+            .map(|&v| VertexHandle {
+                vertex: v as u32,
+                position: mesh[v],
+                weight: 1.0,
+            })
+            .collect(),
+        ..only.clone()
+    };
+    let foot_err = |r: &panoman_fit::ik::IkResult| {
+        ["foot.L", "foot.R"]
+            .iter()
+            .flat_map(|b| {
+                let t = truth.pose.euler_deg[bone(b)];
+                let a = r.state.angles[bone(b)];
+                [(a[0].to_degrees() - t[0]).abs()]
+            })
+            .fold(0.0, f64::max)
+    };
+    let cfg = IkConfig::default();
+    let a = panoman_fit::ik_fit(s, &only, &cfg).unwrap();
+    let b = panoman_fit::ik_fit(s, &with, &cfg).unwrap();
+    let warm = IkConfig {
+        initial_state: Some(a.state.clone()),
+        ..IkConfig::default()
+    };
+    let c = panoman_fit::ik_fit(s, &with, &warm).unwrap();
+    let (_, ea) = vertex_errors(&a.posed, &mesh);
+    let (_, eb) = vertex_errors(&b.posed, &mesh);
+    eprintln!(
+        "feet: flexion keypoints only {:.1}° off (vertices {ea:.2} mm), with 6 foot handles {:.2}° \
+         (vertices {eb:.2} mm), warm {:.2}°; stages {:?}",
+        foot_err(&a),
+        foot_err(&b),
+        foot_err(&c),
+        b.stages.iter().map(|s| s.name).collect::<Vec<_>>()
+    );
+    assert!(foot_err(&a) > 10.0, "keypoints alone: {}°", foot_err(&a));
+    assert!(foot_err(&b) < 3.0, "with handles: {}°", foot_err(&b));
+    assert!(foot_err(&c) < 3.0, "warm with handles: {}°", foot_err(&c));
+    assert!(eb < 1.0 && eb * 5.0 < ea, "vertices {ea} → {eb} mm");
+    assert_eq!(b.stages.last().unwrap().name, "handles");
+    assert_eq!(b.stages.last().unwrap().n_points, feet.len());
+}
+
 /// The phenotype polish of `ik_fit` (`IkConfig::phenotype_polish`): never a higher objective
 /// than the plain solve, and on these people (where the staged solve ends in a wrong age,
 /// muscle or weight cell for four of eight: body keypoints 0.28–0.35 mm off) it reaches the

@@ -33,12 +33,19 @@ fn excerpt_is_tracked_by_both_methods() {
     let rt = CmuRetarget::calibrate(&identity, &shape, &bvh, 0).unwrap();
     let n = bvh.n_frames();
     let mut heard = 0;
-    let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), &mut |done, total, row| {
-        heard += 1;
-        assert_eq!(done, heard);
-        assert_eq!(total, n.div_ceil(3));
-        assert!(row.panoman.all_mean.is_finite() && row.lbs.all_mean.is_finite());
-    })
+    let rep = track_retarget(
+        &model,
+        &rt,
+        &bvh,
+        (0, None, 3),
+        false,
+        &mut |done, total, row| {
+            heard += 1;
+            assert_eq!(done, heard);
+            assert_eq!(total, n.div_ceil(3));
+            assert!(row.panoman.all_mean.is_finite() && row.lbs.all_mean.is_finite());
+        },
+    )
     .unwrap();
     assert_eq!(rep.frames.len(), n.div_ceil(3));
     assert_eq!(heard, rep.frames.len());
@@ -72,4 +79,51 @@ fn excerpt_is_tracked_by_both_methods() {
     // is most of it — crates/panoman-mocap/README.md); 40 mm, about twice the worst frame,
     // means a frame lost the person.
     assert!(rep.panoman.max_mm < 40.0, "{:?}", rep.panoman);
+}
+
+/// The six foot points on the default identity's rest mesh (small model): big toe, small toe
+/// and heel of each foot, left on +x, toes forward (−y) of the heel, the big toe medial of the
+/// small toe, all on the sole; and the excerpt tracked with them as handles carries them.
+#[test]
+fn foot_points_sit_on_the_soles_and_join_the_targets() {
+    use panoman_mocap::track::{FOOT_POINT_NAMES, foot_points};
+    let model = panoman::Model::load(panoman::training::small_model(None).expect("small model"))
+        .expect("loads");
+    let rig = model.inner().rig.clone().expect("rig");
+    let topology = model.output_topology().unwrap();
+    let id = rig.generator.identity(&ShapeParams::default()).unwrap();
+    let rest = rig
+        .map
+        .map(topology, &id.pose(&Default::default()).vertices);
+    let p = foot_points(&rest).unwrap();
+    let low = rest.iter().map(|v| v[2]).fold(f64::INFINITY, f64::min);
+    let v = |k: usize| rest[p[k] as usize];
+    for side in 0..2 {
+        let (big, small, heel) = (v(3 * side), v(3 * side + 1), v(3 * side + 2));
+        let sign = if side == 0 { 1.0 } else { -1.0 };
+        for q in [big, small, heel] {
+            assert!(q[0] * sign > 0.0, "side {side}: {q:?}");
+            assert!(q[2] < low + 0.03, "not on the sole: {q:?}");
+        }
+        assert!(
+            big[1] < heel[1] - 0.1 && small[1] < heel[1] - 0.05,
+            "{big:?} {small:?} {heel:?}"
+        );
+        assert!(
+            big[0].abs() < small[0].abs(),
+            "big toe not medial: {big:?} {small:?}"
+        );
+    }
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/01_01_head.bvh");
+    let bvh = read_bvh(&path).unwrap().scaled(CMU_UNIT_M);
+    let shape = ShapeParams::default();
+    let rt = CmuRetarget::calibrate(&id, &shape, &bvh, 0).unwrap();
+    let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), true, &mut |_, _, _| {}).unwrap();
+    let names: Vec<&str> = rep.foot_points.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, FOOT_POINT_NAMES);
+    assert_eq!(
+        rep.foot_points.iter().map(|(_, v)| *v).collect::<Vec<_>>(),
+        p.to_vec()
+    );
+    assert!(rep.panoman.mean_mm.is_finite() && rep.lbs.mean_mm.is_finite());
 }
