@@ -209,3 +209,88 @@ fn tc127_openpose_and_panoptic_targets_give_the_same_fit() {
     ]));
     validate(&glb);
 }
+
+/// OpenPose BODY_25's foot points reach the fit: a person with both feet flexed (30° and 25°
+/// toes down, which TC-127 cannot see) fitted by `panoman fit --baseline lbs` from the same
+/// OpenPose keypoints with the six foot points given (on the model's `foot_points`) and with
+/// them at confidence 0: with them the IK reports its handle stage and the feet land.
+#[test]
+fn openpose_foot_points_place_the_feet() {
+    let (dir, _data, model_path) = small_model("interchange-fit-feet", 9);
+    let model = Model::load(&model_path).unwrap();
+    let g = Generator::from_model(&model).unwrap();
+    let params = g
+        .parse_params(
+            r#"{"pose_euler_xyz_deg": {"foot.L": [30, 0, 0], "foot.R": [25, 0, 0],
+                "upperarm01.R": [0, 0, 40]}}"#,
+        )
+        .unwrap();
+    let truth = g
+        .generate(&params, model.output_topology().unwrap())
+        .unwrap();
+    let k = model.keypoints(&truth).unwrap();
+    let feet = model.foot_points().unwrap();
+    let cm = |p: [f64; 3], c: f64| [p[0] * 100.0, p[1] * 100.0, p[2] * 100.0, c];
+    let doc = |c: f64| {
+        let mut pose = vec![0.0; 100];
+        for (t, &src) in OPENPOSE_BODY25_TO_TC127.iter().enumerate() {
+            pose[4 * src..4 * src + 4].copy_from_slice(&cm(k[t], 1.0));
+        }
+        for (i, &src) in panoman_interchange::keypoints_in::OPENPOSE_BODY25_FEET
+            .iter()
+            .enumerate()
+        {
+            pose[4 * src..4 * src + 4].copy_from_slice(&cm(truth[feet[i] as usize], c));
+        }
+        let part =
+            |o: usize, n: usize| -> Vec<f64> { (o..o + n).flat_map(|t| cm(k[t], 1.0)).collect() };
+        json!({"version": 1.3, "people": [{
+            "pose_keypoints_3d": pose,
+            "face_keypoints_3d": part(FACE_OFFSET, N_FACE),
+            "hand_left_keypoints_3d": part(LHAND_OFFSET, N_HAND),
+            "hand_right_keypoints_3d": part(RHAND_OFFSET, N_HAND),
+        }]})
+    };
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let fit = |c: f64, name: &str| {
+        let kp = dir.join(format!("{name}.json"));
+        std::fs::write(&kp, doc(c).to_string()).unwrap();
+        let out = dir.join(name);
+        ok(common::panoman(&[
+            "fit",
+            "--model",
+            &s(&model_path),
+            "--keypoints",
+            &s(&kp),
+            "--baseline",
+            "lbs",
+            "--out",
+            &s(&out),
+        ]));
+        let report = std::fs::read_to_string(out.join("report.json")).unwrap();
+        (read_obj(&out.join("mesh.obj")), report)
+    };
+    let foot_err = |m: &[[f64; 3]]| {
+        feet.iter()
+            .map(|&v| {
+                let (a, b) = (m[v as usize], truth[v as usize]);
+                ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+            })
+            .sum::<f64>()
+            / 6.0
+    };
+    let (without, r0) = fit(0.0, "no_feet");
+    let (with, r1) = fit(1.0, "feet");
+    let (e0, e1) = (foot_err(&without), foot_err(&with));
+    eprintln!(
+        "foot points {:.1} mm without, {:.1} mm with",
+        1e3 * e0,
+        1e3 * e1
+    );
+    assert!(
+        !r0.contains("\"handles\"") && r1.contains("\"handles\""),
+        "{r1}"
+    );
+    assert!(e0 > 0.02, "TC-127 alone placed the flexed feet: {e0} m");
+    assert!(e1 < 0.005 && e1 * 5.0 < e0, "{e0} → {e1} m");
+}

@@ -30,6 +30,7 @@ use std::path::Path;
 use panoman_human::keypoints::{
     FACE_OFFSET, KeypointsFile, LHAND_OFFSET, N_BODY, N_FACE, N_HAND, RHAND_OFFSET,
 };
+use panoman_mesh::geom::V3;
 use serde_json::Value;
 
 use crate::error::{InterchangeError, Result};
@@ -244,11 +245,48 @@ pub fn read_keypoints_files(paths: &[&Path], options: &ImportOptions) -> Result<
     Ok(out)
 }
 
+/// OpenPose BODY_25 indices of the six foot points (`LBigToe`, `LSmallToe`, `LHeel`,
+/// `RBigToe`, `RSmallToe`, `RHeel`), in the order of `panoman::feet::FOOT_POINT_NAMES`.
+pub const OPENPOSE_BODY25_FEET: [usize; 6] = [19, 20, 21, 22, 23, 24];
+
+/// A keypoints file read with what TC-127 has no place for: the foot points.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ImportedKeypoints {
+    /// The TC-127 targets.
+    pub keypoints: KeypointsFile,
+    /// The six foot points ([`OPENPOSE_BODY25_FEET`] order: left big toe, small toe, heel,
+    /// then right), each `(position in metres, confidence)`; `None` where the file has none
+    /// or its confidence is 0 (only OpenPose BODY_25 carries them).
+    pub feet: [Option<(V3, f64)>; 6],
+}
+
+/// [`read_keypoints`] that also returns the foot points of an OpenPose BODY_25 file.
+///
+/// # Errors
+/// See [`read_keypoints`]; a foot point with a non-finite coordinate or a negative or
+/// non-finite confidence.
+pub fn read_keypoints_with_feet(path: &Path, options: &ImportOptions) -> Result<ImportedKeypoints> {
+    let text = std::fs::read_to_string(path).map_err(|e| InterchangeError::io(path, e))?;
+    parse_keypoints_with_feet(&text, path, options)
+}
+
 /// Parses keypoints JSON text of any supported layout (`path` names the file in errors).
 ///
 /// # Errors
 /// See [`read_keypoints`].
 pub fn parse_keypoints(text: &str, path: &Path, options: &ImportOptions) -> Result<KeypointsFile> {
+    Ok(parse_keypoints_with_feet(text, path, options)?.keypoints)
+}
+
+/// [`parse_keypoints`] that also returns the foot points (see [`ImportedKeypoints`]).
+///
+/// # Errors
+/// See [`read_keypoints_with_feet`].
+pub fn parse_keypoints_with_feet(
+    text: &str,
+    path: &Path,
+    options: &ImportOptions,
+) -> Result<ImportedKeypoints> {
     let doc: Value = serde_json::from_str(text)
         .map_err(|e| InterchangeError::format(path, format!("invalid JSON: {e}")))?;
     let layout = detect(&doc, path)?;
@@ -263,10 +301,16 @@ pub fn parse_keypoints(text: &str, path: &Path, options: &ImportOptions) -> Resu
     let fmt = |w: String| InterchangeError::format(path, w);
     let mut acc = Acc {
         out: KeypointsFile::default(),
+        feet: [None; 6],
         per_metre: options.unit.per_metre(),
     };
     match layout {
-        Layout::Tc127 => return KeypointsFile::parse(text).map_err(|e| fmt(e.to_string())),
+        Layout::Tc127 => {
+            return Ok(ImportedKeypoints {
+                keypoints: KeypointsFile::parse(text).map_err(|e| fmt(e.to_string()))?,
+                feet: [None; 6],
+            });
+        }
         Layout::OpenPose => openpose(&doc, options.person, &mut acc).map_err(fmt)?,
         Layout::PanopticBody => {
             let body = pick(&doc, "bodies", options.person).map_err(fmt)?;
@@ -297,16 +341,40 @@ pub fn parse_keypoints(text: &str, path: &Path, options: &ImportOptions) -> Resu
         }
     }
     acc.out.validate().map_err(|e| fmt(e.to_string()))?;
-    Ok(acc.out)
+    Ok(ImportedKeypoints {
+        keypoints: acc.out,
+        feet: acc.feet,
+    })
 }
 
-/// The collected targets and the unit (units per metre).
+/// The collected targets, foot points and the unit (units per metre).
 struct Acc {
     out: KeypointsFile,
+    feet: [Option<(V3, f64)>; 6],
     per_metre: f64,
 }
 
 impl Acc {
+    /// Source values `xyz` with confidence `c` in metres; `None` for confidence 0.
+    fn value(
+        &self,
+        xyz: &[f64],
+        c: f64,
+        array: &str,
+        s: usize,
+    ) -> std::result::Result<Option<V3>, String> {
+        if !c.is_finite() || c < 0.0 {
+            return Err(format!(
+                "{array}[{s}]: confidence must be finite and ≥ 0, got {c}"
+            ));
+        }
+        if let Some(x) = xyz.iter().find(|x| !x.is_finite()) {
+            return Err(format!("{array}[{s}]: coordinate {x} is not finite"));
+        }
+        let m = self.per_metre;
+        Ok((c > 0.0).then(|| [xyz[0] / m, xyz[1] / m, xyz[2] / m]))
+    }
+
     /// Adds TC-127 keypoint `t` from source values `xyz` with confidence `c` (skipped if 0).
     fn point(
         &mut self,
@@ -316,22 +384,23 @@ impl Acc {
         array: &str,
         s: usize,
     ) -> std::result::Result<(), String> {
-        if !c.is_finite() || c < 0.0 {
-            return Err(format!(
-                "{array}[{s}]: confidence must be finite and ≥ 0, got {c}"
-            ));
+        if let Some(p) = self.value(xyz, c, array, s)? {
+            self.out.points.insert(t, p);
+            self.out.weights.insert(t, c);
         }
-        if let Some(x) = xyz.iter().find(|x| !x.is_finite()) {
-            return Err(format!("{array}[{s}]: coordinate {x} is not finite"));
-        }
-        if c == 0.0 {
-            return Ok(());
-        }
-        let m = self.per_metre;
-        self.out
-            .points
-            .insert(t, [xyz[0] / m, xyz[1] / m, xyz[2] / m]);
-        self.out.weights.insert(t, c);
+        Ok(())
+    }
+
+    /// Sets foot point `k` ([`OPENPOSE_BODY25_FEET`] order) like [`Acc::point`].
+    fn foot(
+        &mut self,
+        k: usize,
+        xyz: &[f64],
+        c: f64,
+        array: &str,
+        s: usize,
+    ) -> std::result::Result<(), String> {
+        self.feet[k] = self.value(xyz, c, array, s)?.map(|p| (p, c));
         Ok(())
     }
 }
@@ -432,6 +501,11 @@ fn openpose(doc: &Value, person: usize, acc: &mut Acc) -> std::result::Result<()
         for (s, &t) in map.iter().enumerate() {
             if t != usize::MAX {
                 acc.point(t, &v[4 * s..4 * s + 3], v[4 * s + 3], &key, s)?;
+            }
+        }
+        if *stem == "pose_keypoints" {
+            for (k, &s) in OPENPOSE_BODY25_FEET.iter().enumerate() {
+                acc.foot(k, &v[4 * s..4 * s + 3], v[4 * s + 3], &key, s)?;
             }
         }
     }

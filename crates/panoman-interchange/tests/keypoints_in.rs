@@ -249,3 +249,71 @@ fn nobody_in_the_frame_gives_no_targets() {
     let k = keypoints_in::read_keypoints(&p, &ImportOptions::default()).unwrap();
     assert!(k.points.is_empty());
 }
+
+/// OpenPose BODY_25's six foot points (19–24) come back apart from the TC-127 targets, in
+/// metres with their confidences; confidence 0 is absent; a bad foot point is an error naming
+/// the file; TC-127 files carry none.
+#[test]
+fn openpose_foot_points_are_read_apart() {
+    let dir = common::scratch("keypoints_in_feet");
+    let want = targets();
+    let mut doc = openpose_doc(&want);
+    let pose = doc["people"][0]["pose_keypoints_3d"]
+        .as_array_mut()
+        .unwrap();
+    for k in 0..6 {
+        let s = keypoints_in::OPENPOSE_BODY25_FEET[k];
+        let c = if k == 4 { 0.0 } else { 0.25 + 0.125 * k as f64 };
+        for (j, v) in [10.0 + k as f64, -20.0, 2.5 * k as f64, c]
+            .into_iter()
+            .enumerate()
+        {
+            pose[4 * s + j] = json!(v);
+        }
+    }
+    let p = write(&dir, "feet_keypoints.json", &doc);
+    let r = keypoints_in::read_keypoints_with_feet(&p, &ImportOptions::default()).unwrap();
+    assert_same(&want, &r.keypoints, "openpose with feet");
+    for k in 0..6 {
+        if k == 4 {
+            assert_eq!(r.feet[k], None, "confidence 0 is absent");
+            continue;
+        }
+        let (q, c) = r.feet[k].expect("foot point given");
+        let want_q = [(10.0 + k as f64) / 100.0, -0.2, 0.025 * k as f64];
+        for a in 0..3 {
+            assert!(
+                (q[a] - want_q[a]).abs() < 1e-12,
+                "foot {k}: {q:?} vs {want_q:?}"
+            );
+        }
+        assert_eq!(c, 0.25 + 0.125 * k as f64);
+    }
+    // The TC-127 reader's view of the same file is unchanged.
+    let plain = keypoints_in::read_keypoints(&p, &ImportOptions::default()).unwrap();
+    assert_same(&plain, &r.keypoints, "read_keypoints");
+    // A TC-127 file has no foot points.
+    let tc = dir.join("frame.tc127.json");
+    want.write(&tc).unwrap();
+    let t = keypoints_in::read_keypoints_with_feet(&tc, &ImportOptions::default()).unwrap();
+    assert_eq!(t.feet, [None; 6]);
+    // A non-finite heel or a negative confidence: one error naming the file and the point.
+    pose_set(&mut doc, 4 * 21, json!(null));
+    let e = error_of(&dir, "bad_heel.json", &doc);
+    assert!(e.contains("pose_keypoints") && e.contains("[84]"), "{e}");
+    let mut doc = openpose_doc(&want);
+    pose_set(&mut doc, 4 * 24 + 3, json!(-1.0));
+    let e = keypoints_in::read_keypoints_with_feet(
+        &write(&dir, "bad_conf.json", &doc),
+        &ImportOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("bad_conf.json") && e.contains("[24]"), "{e}");
+}
+
+fn pose_set(doc: &mut Value, i: usize, v: Value) {
+    doc["people"][0]["pose_keypoints_3d"]
+        .as_array_mut()
+        .unwrap()[i] = v;
+}

@@ -25,7 +25,6 @@ use panoman::{FitRequest, IkStart, Method, Model, Targets, Tracker};
 use panoman_fit::fit::VertexHandle;
 use panoman_fit::twist::median;
 use panoman_human::params::GeneratorParams;
-use panoman_mesh::geom::V3;
 use serde::Serialize;
 
 use crate::bvh::Bvh;
@@ -134,57 +133,7 @@ pub struct TrackReport {
     pub worst: Option<MeshTriple>,
 }
 
-/// The six foot points of the trackers' optional foot targets, in order: `l_big_toe`,
-/// `l_small_toe`, `l_heel`, `r_big_toe`, `r_small_toe`, `r_heel` (OpenPose BODY_25's
-/// `LBigToe`, `LSmallToe`, `LHeel`, …; "left" is the character's left, +x).
-pub const FOOT_POINT_NAMES: [&str; 6] = [
-    "l_big_toe",
-    "l_small_toe",
-    "l_heel",
-    "r_big_toe",
-    "r_small_toe",
-    "r_heel",
-];
-
-/// The vertices of [`FOOT_POINT_NAMES`] on a standing rest mesh `rest` (`(V, 3)`, metres, Z
-/// up, facing −Y, left +X, feet flat; e.g. the default identity at rest): per foot the
-/// vertices within 3 cm of its lowest point (the sole), split at their mean |x| into a medial
-/// and a lateral half; the big toe is the medial half's most forward vertex (least y), the
-/// small toe the lateral half's, the heel the sole's rearmost (greatest y).
-///
-/// # Errors
-/// [`MocapError::Invalid`] if a side has no vertex (not a body mesh).
-pub fn foot_points(rest: &[V3]) -> Result<[u32; 6]> {
-    let mut out = [0u32; 6];
-    for (k, side) in [1.0f64, -1.0].into_iter().enumerate() {
-        let foot: Vec<usize> = (0..rest.len())
-            .filter(|&i| rest[i][0] * side > 0.0)
-            .collect();
-        let low = foot
-            .iter()
-            .map(|&i| rest[i][2])
-            .fold(f64::INFINITY, f64::min);
-        let sole: Vec<usize> = foot
-            .into_iter()
-            .filter(|&i| rest[i][2] < low + 0.03)
-            .collect();
-        if sole.is_empty() {
-            return Err(inv("foot points: a side of the mesh has no vertex"));
-        }
-        let mid = sole.iter().map(|&i| rest[i][0].abs()).sum::<f64>() / sole.len() as f64;
-        let pick = |keep: &dyn Fn(usize) -> bool, key: &dyn Fn(usize) -> f64| {
-            sole.iter()
-                .copied()
-                .filter(|&i| keep(i))
-                .min_by(|&a, &b| key(a).total_cmp(&key(b)))
-                .unwrap_or(sole[0]) as u32
-        };
-        out[3 * k] = pick(&|i| rest[i][0].abs() < mid, &|i| rest[i][1]);
-        out[3 * k + 1] = pick(&|i| rest[i][0].abs() >= mid, &|i| rest[i][1]);
-        out[3 * k + 2] = pick(&|_| true, &|i| -rest[i][1]);
-    }
-    Ok(out)
-}
+pub use panoman::feet::{FOOT_POINT_NAMES, foot_points};
 
 /// Progress of [`track_generated`]: `(frames done, frames in all, the last frame's row)`.
 pub type TrackProgress<'a> = &'a mut dyn FnMut(usize, usize, &TrackFrame);
@@ -258,15 +207,10 @@ pub fn track_generated(
     let names = rig.generator.bone_names();
     let groups = Groups::of_model(model);
     let foot = if feet {
-        let shape = panoman_human::params::ShapeParams::default();
-        let id = rig
-            .generator
-            .identity(&shape)
-            .map_err(|e| inv(format!("default identity: {e}")))?;
-        let rest = rig
-            .map
-            .map(topology, &id.pose(&Default::default()).vertices);
-        foot_points(&rest)?.to_vec()
+        model
+            .foot_points()
+            .map_err(|e| inv(format!("foot points: {e}")))?
+            .to_vec()
     } else {
         Vec::new()
     };

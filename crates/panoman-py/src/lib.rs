@@ -618,6 +618,20 @@ impl PyModel {
         Ok(out_points(py, &v))
     }
 
+    /// The six foot points as template vertex indices, a dict `{"l_big_toe": v, "l_small_toe":
+    /// v, "l_heel": v, "r_big_toe": …}` (picked on the default identity's rest soles): pass
+    /// foot detections (e.g. OpenPose BODY_25's 19–24) as `handles={v: xyz}` and the IK places
+    /// the feet. Raises `ValueError` for a model without an embedded rig.
+    fn foot_points(&self, py: Python<'_>) -> PyResult<std::collections::BTreeMap<String, u32>> {
+        let m = &self.inner;
+        let v = run(py, || m.foot_points())?;
+        Ok(panoman::FOOT_POINT_NAMES
+            .iter()
+            .zip(v)
+            .map(|(n, v)| ((*n).to_string(), v))
+            .collect())
+    }
+
     /// Keypoint names, TC-127 order (127 strings).
     #[getter]
     fn keypoint_names(&self) -> Vec<String> {

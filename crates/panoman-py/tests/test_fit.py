@@ -60,6 +60,24 @@ def test_fit_handles_and_points(model, fitter, target):
     assert np.abs(scan.vertices - mesh).mean() < 0.02
 
 
+def test_foot_points_as_handles_place_the_feet(model, fitter, target):
+    mesh, kp = target
+    feet = model.foot_points()
+    assert sorted(feet) == sorted(
+        ["l_big_toe", "l_small_toe", "l_heel", "r_big_toe", "r_small_toe", "r_heel"]
+    )
+    assert len(set(feet.values())) == 6
+    # The heels lifted 3 cm (toes down): the LBS fit follows them only through the IK.
+    target_feet = {v: mesh[v] + ([0.0, 0.0, 0.03] if "heel" in n else 0.0) for n, v in feet.items()}
+    fit = fitter.fit(keypoints=kp, handles=target_feet, method="lbs")
+    plain = fitter.fit(keypoints=kp, method="lbs")
+    for n in ("l_heel", "r_heel"):
+        v = feet[n]
+        with_feet = np.linalg.norm(fit.vertices[v] - target_feet[v])
+        without = np.linalg.norm(plain.vertices[v] - target_feet[v])
+        assert without > 0.02 and with_feet < 0.5 * without, (n, without, with_feet)
+
+
 def test_fit_result_pickles(fitter, target):
     _, kp = target
     fit = fitter.fit(keypoints=kp, method="lbs")

@@ -54,6 +54,7 @@
 
 pub mod error;
 pub mod eval;
+pub mod feet;
 pub mod fitter;
 pub mod generator;
 pub mod model;
@@ -62,6 +63,7 @@ pub mod tracker;
 pub mod training;
 
 pub use error::{Error, Result};
+pub use feet::{FOOT_POINT_NAMES, foot_points};
 pub use fitter::{FitOutput, FitReport, FitRequest, Fitter, IkReport, IkStage, Method, MotionData};
 pub use generator::Generator;
 pub use model::{BlockInfo, BlockName, Correction, Encoder, Model};

@@ -146,14 +146,48 @@ pub struct TrackArgs {
 }
 
 /// Keypoints of any supported layout (TC-127, OpenPose, CMU Panoptic; `panoman-interchange`).
-fn read_keypoints(path: &Path, format: Option<KeypointFormat>, unit: Unit) -> Result<Targets> {
+/// An OpenPose BODY_25 file's foot points (big toe, small toe, heel) become vertex handles on
+/// `feet` (the model's [`Model::foot_points`], their confidence as weight); without `feet`
+/// they are ignored with a warning.
+fn read_keypoints(
+    path: &Path,
+    format: Option<KeypointFormat>,
+    unit: Unit,
+    feet: Option<&[u32; 6]>,
+) -> Result<Targets> {
     let options = ImportOptions {
         unit,
         format,
         person: 0,
     };
+    let k = panoman_interchange::keypoints_in::read_keypoints_with_feet(path, &options)?;
+    let given: Vec<(usize, [f64; 3], f64)> = k
+        .feet
+        .iter()
+        .enumerate()
+        .filter_map(|(i, f)| f.map(|(p, c)| (i, p, c)))
+        .collect();
+    let handles = match (feet, given.is_empty()) {
+        (_, true) => Vec::new(),
+        (Some(v), false) => given
+            .into_iter()
+            .map(|(i, position, weight)| panoman::VertexHandle {
+                vertex: v[i],
+                position,
+                weight,
+            })
+            .collect(),
+        (None, false) => {
+            tracing::warn!(
+                "{}: foot points ignored (the model has no embedded rig to place them)",
+                path.display()
+            );
+            Vec::new()
+        }
+    };
     Ok(Targets {
-        keypoints: panoman_interchange::keypoints_in::read_keypoints(path, &options)?,
+        keypoints: k.keypoints,
+        handles,
         ..Default::default()
     })
 }
@@ -215,9 +249,15 @@ fn write_params(path: &Path, out: &FitOutput, fitter: &Fitter) -> Result<()> {
 pub fn run(a: FitArgs) -> Result<()> {
     let t_setup = Instant::now();
     let model = Model::load(&a.model)?;
-    let mut targets = read_keypoints(&a.keypoints, a.keypoints_format, a.keypoints_unit)?;
+    let feet = model.foot_points().ok();
+    let mut targets = read_keypoints(
+        &a.keypoints,
+        a.keypoints_format,
+        a.keypoints_unit,
+        feet.as_ref(),
+    )?;
     if let Some(h) = &a.handles {
-        targets.handles = read_handles(h, model.n_vertices())?;
+        targets.handles.extend(read_handles(h, model.n_vertices())?);
     }
     if let Some(p) = &a.points {
         let cloud = read_points(p)?;
@@ -409,9 +449,10 @@ fn track_sequence(
     t_setup: Instant,
     bar: Option<&indicatif::ProgressBar>,
 ) -> Result<SequenceSummary> {
+    let feet = model.foot_points().ok();
     let targets: Vec<Targets> = frames
         .iter()
-        .map(|p| read_keypoints(p, a.keypoints_format, a.keypoints_unit))
+        .map(|p| read_keypoints(p, a.keypoints_format, a.keypoints_unit, feet.as_ref()))
         .collect::<Result<_>>()?;
     let req = FitRequest {
         method: if a.baseline.is_some() {

@@ -88,6 +88,9 @@ class Model:
     ) -> Params:
         """The parameters of a registered mesh ``(V, 3)`` metres (inverse of :meth:`pose`,
         rigid placement included); ``rest (V, 3)``: the person's rest shape, when known."""
+    def foot_points(self) -> Dict[str, int]:
+        """The six foot points as template vertex indices (l/r big toe, small toe, heel),
+        for foot detections given as ``handles``."""
     def keypoints(self, vertices: ArrayLike) -> F64:
         """The 127 TC-127 keypoints ``(127, 3)`` float64 metres of a mesh ``(V, 3)``."""
     def rest_shape(self, alpha: ArrayLike) -> F64:
