@@ -93,6 +93,19 @@ fn small_mesh(p: &GeneratorParams) -> Vec<[f64; 3]> {
     f.map.map(OutputTopology::Small, &posed.vertices)
 }
 
+/// Index of the rig bone `name` (panics for an unknown name).
+fn bone(name: &str) -> usize {
+    let names = fx().generator.bone_names();
+    names.iter().position(|b| b == name).unwrap()
+}
+
+/// The default identity with every bone angle given (all zero): the rest pose to edit.
+fn rest_pose() -> GeneratorParams {
+    let mut p = GeneratorParams::default();
+    p.pose.euler_deg = vec![[0.0; 3]; fx().generator.bone_names().len()];
+    p
+}
+
 /// Largest distance (m) between a result's mesh and the mesh its parameters generate.
 fn reproduction_error(r: &panoman_fit::ik::IkResult) -> f64 {
     small_mesh(&r.params)
@@ -571,11 +584,7 @@ fn surface_points_recover_the_mesh_better_than_keypoints() {
 fn a_forearm_twist_beyond_the_sampler_is_reached_by_the_continuation() {
     use panoman_human::keypoints::KeypointsFile;
     let s = solver();
-    let g = &fx().generator;
-    let names = g.bone_names();
-    let bone = |n: &str| names.iter().position(|b| b == n).unwrap();
-    let mut truth = GeneratorParams::default();
-    truth.pose.euler_deg = vec![[0.0; 3]; names.len()];
+    let mut truth = rest_pose();
     truth.pose.euler_deg[bone("upperarm01.L")] = [20.0, 0.0, -30.0];
     truth.pose.euler_deg[bone("lowerarm01.L")] = [35.0, 0.0, 0.0];
     truth.pose.euler_deg[bone("lowerarm02.L")] = [0.0, 150.0, 0.0];
@@ -617,11 +626,7 @@ fn a_forearm_twist_beyond_the_sampler_is_reached_by_the_continuation() {
 fn straight_limbs_are_reached_cold_and_kept_warm() {
     use panoman_human::keypoints::KeypointsFile;
     let s = solver();
-    let g = &fx().generator;
-    let names = g.bone_names();
-    let bone = |n: &str| names.iter().position(|b| b == n).unwrap();
-    let mut truth = GeneratorParams::default();
-    truth.pose.euler_deg = vec![[0.0; 3]; names.len()];
+    let mut truth = rest_pose();
     for (side, z) in [("L", 45.0), ("R", -45.0)] {
         truth.pose.euler_deg[bone(&format!("upperarm01.{side}"))] = [0.0, 0.0, z];
         truth.pose.euler_deg[bone(&format!("lowerarm01.{side}"))] = [-43.0, 0.0, 0.0];
@@ -708,11 +713,7 @@ fn foot_handles_place_the_feet() {
     use panoman_fit::fit::VertexHandle;
     use panoman_human::keypoints::KeypointsFile;
     let s = solver();
-    let g = &fx().generator;
-    let names = g.bone_names();
-    let bone = |n: &str| names.iter().position(|b| b == n).unwrap();
-    let mut truth = GeneratorParams::default();
-    truth.pose.euler_deg = vec![[0.0; 3]; names.len()];
+    let mut truth = rest_pose();
     truth.pose.euler_deg[bone("foot.L")] = [30.0, 0.0, 10.0];
     truth.pose.euler_deg[bone("foot.R")] = [25.0, 0.0, -10.0];
     let mesh = small_mesh(&truth);
