@@ -107,7 +107,9 @@ mod solver;
 mod stages;
 mod targets;
 
-pub use keypoint_model::{ik_extension_limit, ik_wide_range};
+pub use keypoint_model::{
+    ELBOW_EXTENSION_DEG, KNEE_EXTENSION_DEG, ik_extension_limit, ik_wide_range,
+};
 pub use solver::IkSolver;
 pub use targets::{IkTarget, IkTargets, PointTarget};
 
@@ -188,10 +190,11 @@ pub struct IkConfig {
     pub wide_ranges: bool,
     /// Let elbows and knees reach full extension (a straight limb and a few degrees beyond:
     /// [`ik_extension_limit`]) where the sampler's ranges stop 8° (elbow) and 10° (knee)
-    /// short of straight (default false; the wide ranges always do). Warm-started frames of a
-    /// sequence use it ([`crate::pipeline::Sequence::ik_config`]): a cold solve that needs a
-    /// straight limb reaches it through the wide continuation, and the frames after it must
-    /// not be pulled back inside the sampler's range.
+    /// short of straight (default false; it also lowers those bounds of the wide ranges).
+    /// Warm-started frames of a sequence use it ([`crate::pipeline::Sequence::ik_config`]): a
+    /// cold solve that needs a straight limb reaches it through the range continuation of
+    /// [`crate::pipeline::ik_fit`], and the frames after it must not be held inside the
+    /// sampler's range.
     pub full_extension: bool,
 }
 

@@ -165,7 +165,7 @@ impl IkTargets {
     }
 }
 
-/// An extra surface point target of [`IkSolver::solve_with_points`]: a fixed linear
+/// An extra surface point target of [`super::IkSolver::solve_with_points`]: a fixed linear
 /// combination `P(p) = Σ_m b_m x_m(p)` of vertices `m` of the solver's topology (e.g. the
 /// barycentric weights of a triangle, or one vertex with coefficient 1), a target position
 /// `p̂` (metres) and a weight `w ≥ 0` in the units of the keypoint weights.

@@ -71,7 +71,7 @@ impl Groups {
     }
 
     /// Per-vertex errors (mm) of `x` against `truth` (both `(V, 3)` metres, the same
-    /// topology) by part, see [`part_errors`].
+    /// topology) by part, see `part_errors`.
     pub fn errors(&self, x: &[V3], truth: &[V3]) -> PartErrors {
         part_errors(x, truth, self)
     }
