@@ -145,15 +145,20 @@ pub struct TrackArgs {
     pub assets: Option<PathBuf>,
 }
 
+/// The model's foot points, computed on first need (only a file with foot points needs them):
+/// `Err` keeps why they are unavailable (e.g. a model without an embedded rig).
+type FootPoints = std::cell::OnceCell<std::result::Result<[u32; 6], String>>;
+
 /// Keypoints of any supported layout (TC-127, OpenPose, CMU Panoptic; `panoman-interchange`).
 /// An OpenPose BODY_25 file's foot points (big toe, small toe, heel) become vertex handles on
-/// `feet` (the model's [`Model::foot_points`], their confidence as weight); without `feet`
-/// they are ignored with a warning.
+/// the model's [`Model::foot_points`] (their confidence as weight); where the model has none
+/// they are ignored with a warning that says why.
 fn read_keypoints(
     path: &Path,
     format: Option<KeypointFormat>,
     unit: Unit,
-    feet: Option<&[u32; 6]>,
+    model: &Model,
+    feet: &FootPoints,
 ) -> Result<Targets> {
     let options = ImportOptions {
         unit,
@@ -161,30 +166,19 @@ fn read_keypoints(
         person: 0,
     };
     let k = panoman_interchange::keypoints_in::read_keypoints_with_feet(path, &options)?;
-    let given: Vec<(usize, [f64; 3], f64)> = k
-        .feet
-        .iter()
-        .enumerate()
-        .filter_map(|(i, f)| f.map(|(p, c)| (i, p, c)))
-        .collect();
-    let handles = match (feet, given.is_empty()) {
-        (_, true) => Vec::new(),
-        (Some(v), false) => given
-            .into_iter()
-            .map(|(i, position, weight)| panoman::VertexHandle {
-                vertex: v[i],
-                position,
-                weight,
-            })
-            .collect(),
-        (None, false) => {
-            tracing::warn!(
-                "{}: foot points ignored (the model has no embedded rig to place them)",
-                path.display()
-            );
-            Vec::new()
+    let mut handles = Vec::new();
+    if k.feet.iter().any(Option::is_some) {
+        match feet.get_or_init(|| model.foot_points().map_err(|e| e.to_string())) {
+            Ok(v) => handles.extend(k.feet.iter().zip(v).filter_map(|(f, &vertex)| {
+                f.map(|(position, weight)| panoman::VertexHandle {
+                    vertex,
+                    position,
+                    weight,
+                })
+            })),
+            Err(why) => tracing::warn!("{}: foot points ignored ({why})", path.display()),
         }
-    };
+    }
     Ok(Targets {
         keypoints: k.keypoints,
         handles,
@@ -249,12 +243,12 @@ fn write_params(path: &Path, out: &FitOutput, fitter: &Fitter) -> Result<()> {
 pub fn run(a: FitArgs) -> Result<()> {
     let t_setup = Instant::now();
     let model = Model::load(&a.model)?;
-    let feet = model.foot_points().ok();
     let mut targets = read_keypoints(
         &a.keypoints,
         a.keypoints_format,
         a.keypoints_unit,
-        feet.as_ref(),
+        &model,
+        &FootPoints::new(),
     )?;
     if let Some(h) = &a.handles {
         targets.handles.extend(read_handles(h, model.n_vertices())?);
@@ -449,10 +443,10 @@ fn track_sequence(
     t_setup: Instant,
     bar: Option<&indicatif::ProgressBar>,
 ) -> Result<SequenceSummary> {
-    let feet = model.foot_points().ok();
+    let feet = FootPoints::new();
     let targets: Vec<Targets> = frames
         .iter()
-        .map(|p| read_keypoints(p, a.keypoints_format, a.keypoints_unit, feet.as_ref()))
+        .map(|p| read_keypoints(p, a.keypoints_format, a.keypoints_unit, model, &feet))
         .collect::<Result<_>>()?;
     let req = FitRequest {
         method: if a.baseline.is_some() {
