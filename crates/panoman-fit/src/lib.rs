@@ -11,6 +11,7 @@ pub mod icp;
 pub mod ik;
 pub mod pipeline;
 pub mod quality;
+pub mod shape_calibration;
 
 pub use error::{FitError, Result};
 pub use fit::{
@@ -19,5 +20,8 @@ pub use fit::{
 pub use pipeline::{
     IkIcpOptions, Rig, Sequence, SequenceState, WARM_IK_TOLERANCE, fit_frame, ik_config_for_noise,
     ik_fit, ik_icp, init_of,
+};
+pub use shape_calibration::{
+    LENGTH_KNOBS, ShapeCalibration, ShapeCalibrationOptions, ShapeKnob, calibrate_shape,
 };
 pub mod twist;

@@ -25,6 +25,7 @@
 //! Bone-length differences between the subject and the rig's identity are not absorbed
 //! (only the uniform `s`); they are what remains in [`retarget_error`].
 
+use panoman_fit::shape_calibration::{fit_knobs, with_knobs};
 use panoman_human::generator::Identity;
 use panoman_human::params::{GeneratorParams, PoseParams, ShapeParams};
 use panoman_mesh::align::{axis_angle, nearest_rotation};
@@ -473,14 +474,7 @@ pub fn retarget_error(rig: &[Vec<V3>], bvh: &[Vec<V3>]) -> RetargetError {
     }
 }
 
-/// One shape value fitted by [`fit_cmu_shape`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ShapeKnob {
-    /// A phenotype value (in [0, 1]) by name, e.g. `proportions`.
-    Phenotype(&'static str),
-    /// Local changes (each in [−1, 1]) that share one value, e.g. both feet.
-    Changes(&'static [&'static str]),
-}
+pub use panoman_fit::shape_calibration::ShapeKnob;
 
 /// The shape values [`fit_cmu_shape`] adjusts: limb and trunk lengths, shoulder and hip
 /// width, foot size, and the phenotype's proportions.
@@ -496,37 +490,6 @@ pub const CMU_SHAPE_KNOBS: [ShapeKnob; 10] = [
     ShapeKnob::Changes(&["hip-scale-vert-incr"]),
     ShapeKnob::Changes(&["l-foot-scale-incr", "r-foot-scale-incr"]),
 ];
-
-impl ShapeKnob {
-    fn bounds(self) -> (f64, f64) {
-        match self {
-            ShapeKnob::Phenotype(_) => (0.0, 1.0),
-            ShapeKnob::Changes(_) => (-1.0, 1.0),
-        }
-    }
-
-    fn get(self, s: &ShapeParams) -> f64 {
-        match self {
-            ShapeKnob::Phenotype(n) => s.phenotype.get(n).unwrap_or(0.5),
-            ShapeKnob::Changes(l) => s.local_changes.get(l[0]).copied().unwrap_or(0.0),
-        }
-    }
-
-    fn set(self, s: &mut ShapeParams, v: f64) {
-        match self {
-            ShapeKnob::Phenotype(n) => {
-                if let Some(x) = s.phenotype.get_mut(n) {
-                    *x = v;
-                }
-            }
-            ShapeKnob::Changes(l) => {
-                for label in l {
-                    s.local_changes.insert((*label).to_string(), v);
-                }
-            }
-        }
-    }
-}
 
 /// The result of [`fit_cmu_shape`].
 #[derive(Clone, Debug)]
@@ -593,10 +556,7 @@ fn shape_residuals(
     bvh: &Bvh,
     frames: &[usize],
 ) -> Result<Vec<f64>> {
-    let mut shape = base.clone();
-    for (k, x) in CMU_SHAPE_KNOBS.iter().zip(v) {
-        k.set(&mut shape, *x);
-    }
+    let shape = with_knobs(base, &CMU_SHAPE_KNOBS, v);
     let (rig, truth) = cmu_joint_sets(generator, &shape, bvh, 0, frames)?;
     let (ra, ba): (Vec<V3>, Vec<V3>) = (rig.concat(), truth.concat());
     let sim = similarity_align(&ra, &ba);
@@ -616,34 +576,6 @@ fn shape_residuals(
     Ok(r)
 }
 
-/// Solves the small dense system `a x = b` by Gaussian elimination with partial pivoting
-/// (`None` if singular).
-fn solve_dense(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
-    let n = b.len();
-    for c in 0..n {
-        let p = (c..n).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
-        if a[p][c].abs() < 1e-300 {
-            return None;
-        }
-        a.swap(c, p);
-        b.swap(c, p);
-        for r in c + 1..n {
-            let f = a[r][c] / a[c][c];
-            let (top, bottom) = a.split_at_mut(r);
-            for (x, y) in bottom[0][c..].iter_mut().zip(&top[c][c..]) {
-                *x -= f * y;
-            }
-            b[r] -= f * b[c];
-        }
-    }
-    let mut x = vec![0.0; n];
-    for r in (0..n).rev() {
-        let s: f64 = (r + 1..n).map(|k| a[r][k] * x[k]).sum();
-        x[r] = (b[r] - s) / a[r][r];
-    }
-    Some(x)
-}
-
 /// Fits [`CMU_SHAPE_KNOBS`] so that the retargeted rig's joints match the BVH's on
 /// `frames` (after one similarity), by Levenberg–Marquardt with forward-difference
 /// Jacobians and values clamped to their ranges; calibration on frame 0.
@@ -658,7 +590,7 @@ pub fn fit_cmu_shape(
     max_iterations: usize,
 ) -> Result<ShapeFit> {
     let knobs = CMU_SHAPE_KNOBS;
-    let mut v: Vec<f64> = knobs.iter().map(|k| k.get(base)).collect();
+    let v: Vec<f64> = knobs.iter().map(|k| k.get(base)).collect();
     let res = |v: &[f64]| shape_residuals(generator, base, v, bvh, frames);
     let n_pts = (frames.len() * CMU_EVAL_JOINTS.len()) as f64;
     let mean_mm = |r: &[f64]| {
@@ -670,70 +602,12 @@ pub fn fit_cmu_shape(
             / n_pts
             * 1e3
     };
-    let mut r = res(&v)?;
-    let before_mm = mean_mm(&r);
-    let cost = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
-    let (mut mu, mut iterations) = (1e-3, 0);
-    for _ in 0..max_iterations {
-        iterations += 1;
-        let h = 1e-3;
-        let mut jac = Vec::with_capacity(knobs.len());
-        for (i, k) in knobs.iter().enumerate() {
-            let (lo, hi) = k.bounds();
-            let step = if v[i] + h > hi { -h } else { h };
-            let mut w = v.clone();
-            w[i] = (w[i] + step).clamp(lo, hi);
-            let rw = res(&w)?;
-            jac.push(
-                rw.iter()
-                    .zip(&r)
-                    .map(|(a, b)| (a - b) / step)
-                    .collect::<Vec<f64>>(),
-            );
-        }
-        let n = knobs.len();
-        let jtj: Vec<Vec<f64>> = (0..n)
-            .map(|i| (0..n).map(|j| dot_n(&jac[i], &jac[j])).collect())
-            .collect();
-        let jtr: Vec<f64> = (0..n).map(|i| -dot_n(&jac[i], &r)).collect();
-        let mut improved = false;
-        for _ in 0..8 {
-            let mut a = jtj.clone();
-            for (i, row) in a.iter_mut().enumerate() {
-                row[i] += mu * (jtj[i][i] + 1e-12);
-            }
-            let Some(d) = solve_dense(a, jtr.clone()) else {
-                break;
-            };
-            let w: Vec<f64> = knobs
-                .iter()
-                .zip(v.iter().zip(&d))
-                .map(|(k, (x, dx))| (x + dx).clamp(k.bounds().0, k.bounds().1))
-                .collect();
-            let rw = res(&w)?;
-            if cost(&rw) < cost(&r) {
-                (v, r, improved) = (w, rw, true);
-                mu = (mu / 3.0).max(1e-9);
-                break;
-            }
-            mu *= 4.0;
-        }
-        if !improved {
-            break;
-        }
-    }
-    let mut shape = base.clone();
-    for (k, x) in knobs.iter().zip(&v) {
-        k.set(&mut shape, *x);
-    }
+    let before_mm = mean_mm(&res(&v)?);
+    let fit = fit_knobs(&knobs, &v, max_iterations, res)?;
     Ok(ShapeFit {
-        shape,
+        shape: with_knobs(base, &knobs, &fit.values),
         before_mm,
-        after_mm: mean_mm(&r),
-        iterations,
+        after_mm: mean_mm(&fit.residuals),
+        iterations: fit.iterations,
     })
-}
-
-fn dot_n(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
 }

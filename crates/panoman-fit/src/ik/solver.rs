@@ -225,6 +225,33 @@ impl IkSolver {
         Ok(self.map.map(self.topology, &posed.vertices))
     }
 
+    /// The generator's posed meshes of `states` (solver topology, metres), all with the one
+    /// generator shape `shape` (its identity built once): [`IkSolver::pose_params`] of each
+    /// state; the states' phenotype values and face units are not used.
+    ///
+    /// # Errors
+    /// Invalid shape parameters.
+    pub fn posed_meshes(&self, shape: &ShapeParams, states: &[IkState]) -> Result<Vec<Vec<V3>>> {
+        let identity = self.generator.identity(shape)?;
+        Ok(states
+            .iter()
+            .map(|st| {
+                let posed = identity.pose(&self.pose_params(st));
+                self.map.map(self.topology, &posed.vertices)
+            })
+            .collect())
+    }
+
+    /// The solver's keypoints on a mesh of its topology, by TC-127 index (`None` for a
+    /// keypoint its set does not define).
+    ///
+    /// # Errors
+    /// A vertex count other than the topology's.
+    pub fn keypoints_on(&self, mesh: &[V3]) -> Result<Vec<Option<V3>>> {
+        let k = self.set.try_evaluate(mesh)?;
+        Ok(self.row_of_tc.iter().map(|r| r.map(|r| k[r])).collect())
+    }
+
     /// [`IkSolver::posed_mesh`] with dual-quaternion skinning
     /// ([`panoman_human::generator::Identity::pose_dqs`]).
     ///
