@@ -560,6 +560,40 @@ fn cli_fit_baseline_track_and_bad_input() {
     for k in 0..3 {
         assert!(track.join(format!("f{k:03}.obj")).exists());
     }
+    assert!(s["shape_calibration"].is_null());
+    // With a shape calibration from two of the frames (the LBS baseline: the same IK).
+    let cal = dir.join("track-cal");
+    ok(panoman(&[
+        "track",
+        "--model",
+        m,
+        "--frames",
+        frames.to_str().unwrap(),
+        "--baseline",
+        "lbs",
+        "--calibrate-shape",
+        "2",
+        "--out",
+        cal.to_str().unwrap(),
+    ]));
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(cal.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["frames"], 3);
+    let c = &s["shape_calibration"];
+    let used: Vec<&str> = c["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap())
+        .collect();
+    assert!(used.len() == 2 && used[0].ends_with("f000.json") && used[1].ends_with("f001.json"));
+    let knobs = c["knobs"].as_object().unwrap();
+    assert_eq!(knobs.len(), 9);
+    assert!(knobs.values().all(|v| v.as_f64().unwrap().abs() <= 1.0));
+    assert!(knobs.contains_key("measure-lowerarm-length-incr"));
+    for k in ["keypoint_error_before_mm", "keypoint_error_after_mm"] {
+        assert!(c[k].as_f64().unwrap().is_finite(), "{k}");
+    }
 
     // Bad input: one line, non-zero exit, nothing written.
     let bad = dir.join("bad");

@@ -201,6 +201,31 @@ fn retarget_writes_params_and_summary() {
     let mean = s["joint_error_mm"]["mean"].as_f64().unwrap();
     assert!(mean > 0.0 && mean < 25.0, "{mean}");
     assert!(d.join("params_00000.json").is_file());
+    // Tracked from keypoints and foot points after a shape calibration from two frames.
+    let t = d.join("track");
+    ok(panoman(&[
+        "mocap",
+        "retarget",
+        "--bvh",
+        &excerpt("01_01_head.bvh"),
+        "--model",
+        &model(),
+        "--shape-frames",
+        "0",
+        "--track",
+        "0::10",
+        "--feet",
+        "--calibrate-shape",
+        "2",
+        "--out",
+        t.to_str().unwrap(),
+    ]));
+    let tr: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(t.join("track.json")).unwrap()).unwrap();
+    let c = &tr["shape_calibration"];
+    assert_eq!(c["frames"].as_array().unwrap().len(), 2);
+    assert_eq!(c["knobs"].as_array().unwrap().len(), 9);
+    assert!(tr["panoman"]["mean_mm"].as_f64().unwrap().is_finite());
     let _ = std::fs::remove_dir_all(&d);
 }
 

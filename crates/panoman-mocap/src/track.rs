@@ -21,8 +21,9 @@
 use std::time::Instant;
 
 use panoman::eval::{Groups, MeshTriple, PartErrors};
-use panoman::{FitRequest, IkStart, Method, Model, Targets, Tracker};
+use panoman::{FitRequest, IkStart, Method, Model, ShapeCalibrationOptions, Targets, Tracker, V3};
 use panoman_fit::fit::VertexHandle;
+use panoman_fit::shape_calibration::spread_frames;
 use panoman_fit::twist::median;
 use panoman_human::params::GeneratorParams;
 use serde::Serialize;
@@ -127,6 +128,8 @@ pub struct TrackReport {
     /// The foot points given to the trackers besides the keypoints (`(name, vertex)`; empty
     /// without `feet`).
     pub foot_points: Vec<(String, u32)>,
+    /// The shape calibration, with [`TrackOptions::shape_frames`] > 0.
+    pub calibration: Option<TrackCalibration>,
     /// Ground truth and both fits of PanoMan's worst frame (`panoman.worst_frame`; metres,
     /// the model's topology).
     #[serde(skip)]
@@ -134,6 +137,33 @@ pub struct TrackReport {
 }
 
 pub use panoman::feet::{FOOT_POINT_NAMES, foot_points};
+
+/// What the trackers of [`track_generated`] are given besides the keypoints.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TrackOptions {
+    /// The six foot points as vertex handles (module docs).
+    pub feet: bool,
+    /// Calibrate the identity's lengths from this many frames spread over the selection
+    /// before tracking ([`panoman::Fitter::calibrate_shape`] on their keypoints, and foot
+    /// points with `feet`; both trackers then hold the calibrated lengths,
+    /// [`Tracker::set_shape`]); 0: none, the IK's six phenotype values only.
+    pub shape_frames: usize,
+}
+
+/// The shape calibration of a [`track_generated`] run.
+#[derive(Clone, Debug, Serialize)]
+pub struct TrackCalibration {
+    /// The source frames it used.
+    pub frames: Vec<usize>,
+    /// The fitted length knobs (`(first local change, value)`, [`panoman::LENGTH_KNOBS`]).
+    pub knobs: Vec<(String, f64)>,
+    /// Mean keypoint (and foot point) distance over its frames before and after, mm.
+    pub before_mm: f64,
+    /// See `before_mm`.
+    pub after_mm: f64,
+    /// Wall time, s.
+    pub seconds: f64,
+}
 
 /// Progress of [`track_generated`]: `(frames done, frames in all, the last frame's row)`.
 pub type TrackProgress<'a> = &'a mut dyn FnMut(usize, usize, &TrackFrame);
@@ -190,7 +220,7 @@ fn inv(what: impl Into<String>) -> MocapError {
 pub fn track_generated(
     model: &Model,
     frames: &[(usize, GeneratorParams)],
-    feet: bool,
+    opts: TrackOptions,
     progress: TrackProgress,
 ) -> Result<TrackReport> {
     if frames.is_empty() {
@@ -206,7 +236,7 @@ pub fn track_generated(
         .map_err(|e| inv(format!("model: {e}")))?;
     let names = rig.generator.bone_names();
     let groups = Groups::of_model(model);
-    let foot = if feet {
+    let foot = if opts.feet {
         model
             .foot_points()
             .map_err(|e| inv(format!("foot points: {e}")))?
@@ -225,12 +255,9 @@ pub fn track_generated(
     let (mut pm, mut lbs) = (tracker(Method::PanoMan)?, tracker(Method::Lbs)?);
     let setup_seconds = t_setup.elapsed().as_secs_f64();
     let mut identity: Option<(panoman_human::params::ShapeParams, _)> = None;
-    let mut rows: Vec<TrackFrame> = Vec::with_capacity(frames.len());
-    let mut worst: Option<MeshTriple> = None;
-    let mut gen_s = 0.0;
-    for (k, (f, p)) in frames.iter().enumerate() {
+    // The ground truth of frame `(f, p)`: its mesh on the model's topology and its targets.
+    let mut truth_of = |f: usize, p: &GeneratorParams| -> Result<(Vec<V3>, Targets)> {
         let at = |e: &dyn std::fmt::Display| inv(format!("frame {f}: {e}"));
-        let t = Instant::now();
         p.shape.validate().map_err(|e| at(&e))?;
         p.pose.validate(names).map_err(|e| at(&e))?;
         if identity.as_ref().is_none_or(|(s, _)| *s != p.shape) {
@@ -248,6 +275,40 @@ pub fn track_generated(
                 weight: 1.0,
             })
             .collect();
+        Ok((truth, targets))
+    };
+    let calibration = if opts.shape_frames > 0 {
+        let picked = spread_frames(frames.len(), opts.shape_frames);
+        let t = Instant::now();
+        let targets = picked
+            .iter()
+            .map(|&i| truth_of(frames[i].0, &frames[i].1).map(|(_, t)| t))
+            .collect::<Result<Vec<_>>>()?;
+        let cal = pm
+            .calibrate_shape(&targets, &ShapeCalibrationOptions::default())
+            .map_err(|e| inv(format!("shape calibration: {e}")))?;
+        lbs.set_shape(Some(cal.shape.clone()));
+        Some(TrackCalibration {
+            frames: picked.iter().map(|&i| frames[i].0).collect(),
+            knobs: ShapeCalibrationOptions::default()
+                .knobs
+                .iter()
+                .zip(&cal.knob_values)
+                .map(|(k, v)| (k.name().to_string(), *v))
+                .collect(),
+            before_mm: cal.before_mm,
+            after_mm: cal.after_mm,
+            seconds: t.elapsed().as_secs_f64(),
+        })
+    } else {
+        None
+    };
+    let mut rows: Vec<TrackFrame> = Vec::with_capacity(frames.len());
+    let mut worst: Option<MeshTriple> = None;
+    let mut gen_s = 0.0;
+    for (k, (f, p)) in frames.iter().enumerate() {
+        let t = Instant::now();
+        let (truth, targets) = truth_of(*f, p)?;
         gen_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let a = pm
@@ -292,6 +353,7 @@ pub fn track_generated(
             .zip(&foot)
             .map(|(n, &v)| ((*n).to_string(), v))
             .collect(),
+        calibration,
         frames: rows,
         worst,
     })
@@ -307,11 +369,11 @@ pub fn track_retarget(
     rt: &CmuRetarget,
     bvh: &Bvh,
     range: FrameRange,
-    feet: bool,
+    opts: TrackOptions,
     progress: TrackProgress,
 ) -> Result<TrackReport> {
     let frames = select_frames(bvh.n_frames(), range)?;
     let params: Vec<(usize, GeneratorParams)> =
         frames.iter().map(|&f| (f, rt.params(bvh, f))).collect();
-    track_generated(model, &params, feet, progress)
+    track_generated(model, &params, opts, progress)
 }

@@ -6,7 +6,7 @@ use std::path::Path;
 use panoman_human::params::ShapeParams;
 use panoman_mocap::bvh::{CMU_UNIT_M, read_bvh};
 use panoman_mocap::retarget::CmuRetarget;
-use panoman_mocap::track::{select_frames, track_retarget};
+use panoman_mocap::track::{TrackOptions, select_frames, track_retarget};
 
 #[test]
 fn frame_selection_rejects_empty_ranges() {
@@ -38,7 +38,7 @@ fn excerpt_is_tracked_by_both_methods() {
         &rt,
         &bvh,
         (0, None, 3),
-        false,
+        TrackOptions::default(),
         &mut |done, total, row| {
             heard += 1;
             assert_eq!(done, heard);
@@ -118,12 +118,30 @@ fn foot_points_sit_on_the_soles_and_join_the_targets() {
     let bvh = read_bvh(&path).unwrap().scaled(CMU_UNIT_M);
     let shape = ShapeParams::default();
     let rt = CmuRetarget::calibrate(&id, &shape, &bvh, 0).unwrap();
-    let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), true, &mut |_, _, _| {}).unwrap();
+    let feet = TrackOptions {
+        feet: true,
+        shape_frames: 0,
+    };
+    let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), feet, &mut |_, _, _| {}).unwrap();
     let names: Vec<&str> = rep.foot_points.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(names, FOOT_POINT_NAMES);
     assert_eq!(
         rep.foot_points.iter().map(|(_, v)| *v).collect::<Vec<_>>(),
         p.to_vec()
     );
+    assert!(rep.panoman.mean_mm.is_finite() && rep.lbs.mean_mm.is_finite());
+    assert!(rep.calibration.is_none());
+    // With a shape calibration from two of the tracked frames (the first and the middle one).
+    let cal = TrackOptions {
+        feet: true,
+        shape_frames: 2,
+    };
+    let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), cal, &mut |_, _, _| {}).unwrap();
+    let c = rep.calibration.expect("calibrated");
+    let n = bvh.n_frames().div_ceil(3);
+    assert_eq!(c.frames, vec![0, 3 * (n / 2)]);
+    assert_eq!(c.knobs.len(), 9);
+    assert!(c.knobs.iter().all(|(_, v)| v.abs() <= 1.0));
+    assert!(c.before_mm.is_finite() && c.after_mm.is_finite());
     assert!(rep.panoman.mean_mm.is_finite() && rep.lbs.mean_mm.is_finite());
 }

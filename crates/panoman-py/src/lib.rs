@@ -1118,6 +1118,63 @@ impl PyTracker {
         fit_result(py, out, &self.bones)
     }
 
+    /// Calibrates the identity's limb and trunk lengths from several frames (one keypoint
+    /// set each, as `track`'s `keypoints`; `handles`: one handle set per frame or None) and
+    /// holds them for the frames that follow. Returns `{"knobs": {name: value},
+    /// "before_mm", "after_mm", "seconds"}`.
+    #[pyo3(signature = (keypoints, handles=None))]
+    fn calibrate_shape<'py>(
+        &self,
+        py: Python<'py>,
+        keypoints: &Bound<'py, PyAny>,
+        handles: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let kps: Vec<Bound<'py, PyAny>> = keypoints
+            .try_iter()
+            .map_err(|_| invalid(py, "keypoints: expected a sequence of keypoint sets"))?
+            .collect::<PyResult<_>>()?;
+        let hs: Option<Vec<Bound<'py, PyAny>>> = handles
+            .map(|h| -> PyResult<Vec<Bound<'py, PyAny>>> {
+                h.try_iter()
+                    .map_err(|_| invalid(py, "handles: expected one handle set per frame"))?
+                    .collect()
+            })
+            .transpose()?;
+        if let Some(h) = &hs
+            && h.len() != kps.len()
+        {
+            return Err(invalid(
+                py,
+                format!(
+                    "handles: {} handle sets for {} keypoint sets",
+                    h.len(),
+                    kps.len()
+                ),
+            ));
+        }
+        let frames = kps
+            .iter()
+            .enumerate()
+            .map(|(i, k)| {
+                let h = hs.as_ref().map(|h| &h[i]);
+                targets(py, Some(k), None, None, None, h)
+            })
+            .collect::<PyResult<Vec<_>>>()?;
+        let opts = panoman::ShapeCalibrationOptions::default();
+        let tr = &self.inner;
+        let cal = run(py, || lock(tr).calibrate_shape(&frames, &opts))?;
+        let knobs = PyDict::new(py);
+        for (k, v) in opts.knobs.iter().zip(&cal.knob_values) {
+            knobs.set_item(k.name(), v)?;
+        }
+        let d = PyDict::new(py);
+        d.set_item("knobs", knobs)?;
+        d.set_item("before_mm", cal.before_mm)?;
+        d.set_item("after_mm", cal.after_mm)?;
+        d.set_item("seconds", cal.seconds)?;
+        Ok(d)
+    }
+
     /// Frames fitted so far.
     #[getter]
     fn frames(&self) -> usize {

@@ -106,6 +106,19 @@ def test_tracker(model, target):
     assert lbs.track(kp).params is None and lbs.frames == 1
 
 
+def test_tracker_shape_calibration(model, target):
+    mesh, kp = target
+    tracker = panoman.Tracker(model, "lbs")
+    frames = [kp, kp + [0.0, 0.02, 0.0]]
+    cal = tracker.calibrate_shape(frames)
+    assert len(cal["knobs"]) == 9 and "measure-lowerarm-length-incr" in cal["knobs"]
+    assert all(-1.0 <= v <= 1.0 for v in cal["knobs"].values())
+    assert np.isfinite(cal["before_mm"]) and np.isfinite(cal["after_mm"]) and cal["seconds"] > 0
+    assert body_mm(tracker.track(kp)) < 10.0
+    with pytest.raises(panoman.InvalidError, match="2 keypoint sets"):
+        tracker.calibrate_shape(frames, handles=[{0: mesh[0]}])
+
+
 def test_motion_data(tmp_path, fitter, target):
     _, kp = target
     lbs = fitter.fit(keypoints=kp, method="lbs")

@@ -6,9 +6,12 @@ use std::time::Instant;
 use panoman_fit::fit::{FitOptions, GroupResidual, StageReport, keypoint_residuals};
 use panoman_fit::ik::{IkConfig, IkResult, IkSolver};
 use panoman_fit::quality::{IkAttempt, QualityOptions, Verdict};
-use panoman_fit::{Constraints, IkIcpOptions, Rig, fit_frame, ik_config_for_noise, ik_icp};
+use panoman_fit::{
+    Constraints, IkIcpOptions, Rig, ShapeCalibration, ShapeCalibrationOptions, calibrate_shape,
+    fit_frame, ik_config_for_noise, ik_icp,
+};
 use panoman_human::assets;
-use panoman_human::params::GeneratorParams;
+use panoman_human::params::{GeneratorParams, ShapeParams};
 use panoman_mesh::geom::V3;
 use panoman_model::model::Params;
 use serde::Serialize;
@@ -406,6 +409,39 @@ impl Fitter {
             rig_params: r.params.clone(),
             report,
         }
+    }
+
+    /// Calibrates the identity's lengths from several frames of targets (MoSh's shape stage
+    /// for keypoints, [`panoman_fit::shape_calibration`]): each frame fitted by the IK, then
+    /// the length knobs of `opts` fitted to every frame's keypoints and handles with the
+    /// poses held, twice by default. Give the result's `shape` to
+    /// [`crate::Tracker::set_shape`]. Frames are best spread over the sequence (different
+    /// poses make the lengths observable); 4–8 suffice.
+    ///
+    /// # Errors
+    /// Invalid targets or request (naming the frame), no frames; IK failures.
+    pub fn calibrate_shape(
+        &self,
+        frames: &[Targets],
+        request: &FitRequest,
+        opts: &ShapeCalibrationOptions,
+    ) -> Result<ShapeCalibration> {
+        let c = frames
+            .iter()
+            .enumerate()
+            .map(|(i, t)| {
+                self.constraints(t, request)
+                    .map_err(|e| Error::Invalid(format!("calibration frame {i}: {e}")))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let cfg = ik_config_for_noise(request.keypoint_sigma);
+        Ok(calibrate_shape(
+            &self.ik,
+            &c,
+            &ShapeParams::default(),
+            &cfg,
+            opts,
+        )?)
     }
 
     pub(crate) fn parts(&mut self) -> (&Rig, &IkSolver, &mut panoman_fit::Fitter) {

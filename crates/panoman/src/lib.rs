@@ -68,9 +68,12 @@ pub use fitter::{FitOutput, FitReport, FitRequest, Fitter, IkReport, IkStage, Me
 pub use generator::Generator;
 pub use model::{BlockInfo, BlockName, Correction, Encoder, Model};
 pub use panoman_fit::fit::{GroupResidual, StageReport, VertexHandle};
+pub use panoman_fit::shape_calibration::{
+    LENGTH_KNOBS, ShapeCalibration, ShapeCalibrationOptions, ShapeKnob,
+};
 pub use panoman_human::keypoints::{KeypointsFile, keypoint_names};
 pub use panoman_human::outputs::OutputTopology;
-pub use panoman_human::params::GeneratorParams;
+pub use panoman_human::params::{GeneratorParams, ShapeParams};
 pub use panoman_mesh::geom::V3;
 pub use panoman_model::model::GnOptions;
 pub use panoman_model::model::Params;

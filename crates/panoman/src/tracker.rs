@@ -71,6 +71,32 @@ impl Tracker {
         self.frames
     }
 
+    /// Fixes the identity's non-fitted shape values for the frames that follow: local changes
+    /// (e.g. the limb lengths of [`Fitter::calibrate_shape`]) and the phenotype values the IK
+    /// does not fit are held, the six IK phenotype values start from `shape`'s and stay
+    /// fitted ([`IkConfig::initial_shape`]). `None`: the default shape (as a new tracker).
+    /// Both methods use it. Not part of a [`Tracker::checkpoint`]: set it again after a
+    /// restore.
+    pub fn set_shape(&mut self, shape: Option<panoman_human::params::ShapeParams>) {
+        self.sequence.ik.initial_shape = shape;
+    }
+
+    /// Calibrates the identity's limb and trunk lengths from `frames` with this tracker's
+    /// request ([`Fitter::calibrate_shape`]) and holds the result for the frames that follow
+    /// ([`Tracker::set_shape`]).
+    ///
+    /// # Errors
+    /// See [`Fitter::calibrate_shape`]; the tracker is unchanged then.
+    pub fn calibrate_shape(
+        &mut self,
+        frames: &[Targets],
+        opts: &panoman_fit::ShapeCalibrationOptions,
+    ) -> Result<panoman_fit::ShapeCalibration> {
+        let cal = self.fitter.calibrate_shape(frames, &self.request, opts)?;
+        self.set_shape(Some(cal.shape.clone()));
+        Ok(cal)
+    }
+
     /// The fitter (e.g. for its setup time).
     pub fn fitter(&self) -> &Fitter {
         &self.fitter
@@ -219,10 +245,9 @@ impl Tracker {
                     IkStart::Cold => None,
                 };
                 // The PanoMan sequence's IK settings, so both methods share the IK.
-                let ikc = self.sequence.ik_config(
-                    &ik_config_for_noise(self.request.keypoint_sigma),
-                    warm.is_some(),
-                );
+                let ikc = self
+                    .sequence
+                    .ik_config(&self.sequence.ik.clone(), warm.is_some());
                 let q = self.request.quality();
                 let (r, attempts) = self.fitter.lbs(&c, &ikc, &q, warm)?;
                 self.lbs_state = Some(r.state.clone());

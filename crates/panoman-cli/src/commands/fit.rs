@@ -8,6 +8,7 @@ use panoman::{
     read_handles, read_points,
 };
 use panoman_fit::fit::FitOptions;
+use panoman_fit::shape_calibration::{ShapeCalibrationOptions, spread_frames};
 use panoman_interchange::keypoints_in::{ImportOptions, KeypointFormat, Unit};
 use panoman_mesh::{TriMesh, io};
 use serde_json::json;
@@ -134,6 +135,12 @@ pub struct TrackArgs {
     /// Exit with status 3 when any frame fails the quality check (default: warn, exit 0).
     #[arg(long)]
     pub strict: bool,
+    /// First calibrate the identity's limb and trunk lengths (MoSh's shape stage) from N
+    /// frames spread over each sequence: their segment lengths (upper arm, forearm, thigh,
+    /// shank, shoulder and hip width, torso) fix the rig's length controls for every frame;
+    /// summary.json gets `shape_calibration`. 0: the IK's six phenotype values only.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub calibrate_shape: usize,
     /// Continue an interrupted run into the same --out: skip the frames whose outputs the
     /// checkpoint in DIR/track-resume/ records as complete and go on from its tracker state
     /// (same outputs as an uninterrupted run, bit for bit); without a checkpoint, start at
@@ -459,6 +466,28 @@ fn track_sequence(
     let start = if a.cold { IkStart::Cold } else { IkStart::Warm };
     let fitter = Fitter::with_assets(model, a.assets.as_deref())?;
     let mut tracker = Tracker::with_fitter(fitter, req, start);
+    let calibration = if a.calibrate_shape > 0 {
+        let picked = spread_frames(targets.len(), a.calibrate_shape);
+        let sel: Vec<Targets> = picked.iter().map(|&i| targets[i].clone()).collect();
+        let opts = ShapeCalibrationOptions::default();
+        let cal = tracker
+            .calibrate_shape(&sel, &opts)
+            .map_err(|e| anyhow!("shape calibration: {e}"))?;
+        Some(json!({
+            "frames": picked.iter().map(|&i| frames[i].display().to_string()).collect::<Vec<_>>(),
+            "knobs": opts
+                .knobs
+                .iter()
+                .zip(&cal.knob_values)
+                .map(|(k, v)| (k.name(), *v))
+                .collect::<std::collections::BTreeMap<_, _>>(),
+            "keypoint_error_before_mm": cal.before_mm,
+            "keypoint_error_after_mm": cal.after_mm,
+            "seconds": cal.seconds,
+        }))
+    } else {
+        None
+    };
     let setup_s = t_setup.elapsed().as_secs_f64();
     std::fs::create_dir_all(out_dir).with_context(|| out_dir.display().to_string())?;
     let mut resume = ResumeState::open(a, out_dir)?;
@@ -524,6 +553,7 @@ fn track_sequence(
         "not_converged": totals.not_converged.len(),
         "not_converged_frames": totals.not_converged,
         "ik_retried": totals.retried,
+        "shape_calibration": calibration,
         "per_frame": rows,
     });
     write_json(&out_dir.join("summary.json"), &summary)?;

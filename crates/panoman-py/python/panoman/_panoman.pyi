@@ -208,6 +208,16 @@ class Tracker:
     ) -> FitResult:
         """Fits the next frame (arguments as :meth:`Fitter.fit`); on an error the sequence
         state is unchanged."""
+    def calibrate_shape(
+        self,
+        keypoints: Sequence[Keypoints],
+        handles: Optional[Sequence[Handles]] = None,
+    ) -> Dict[str, Any]:
+        """Calibrates the identity's limb and trunk lengths (nine length controls of the
+        generator) from several frames, best spread over the sequence, and holds them for the
+        frames that follow. ``handles``: one handle set per frame (e.g. foot points).
+        Returns ``{"knobs": {name: value}, "before_mm", "after_mm", "seconds"}`` (mean
+        keypoint distance over those frames before and after, mm)."""
     @property
     def frames(self) -> int:
         """Frames fitted so far."""
