@@ -25,7 +25,7 @@
 //! Bone-length differences between the subject and the rig's identity are not absorbed
 //! (only the uniform `s`); they are what remains in [`retarget_error`].
 
-use panoman_fit::shape_calibration::{fit_knobs, with_knobs};
+use panoman_fit::shape_calibration::{LENGTH_KNOBS, fit_knobs, with_knobs};
 use panoman_human::generator::Identity;
 use panoman_human::params::{GeneratorParams, PoseParams, ShapeParams};
 use panoman_mesh::align::{axis_angle, nearest_rotation};
@@ -476,20 +476,19 @@ pub fn retarget_error(rig: &[Vec<V3>], bvh: &[Vec<V3>]) -> RetargetError {
 
 pub use panoman_fit::shape_calibration::ShapeKnob;
 
-/// The shape values [`fit_cmu_shape`] adjusts: limb and trunk lengths, shoulder and hip
-/// width, foot size, and the phenotype's proportions.
-pub const CMU_SHAPE_KNOBS: [ShapeKnob; 10] = [
-    ShapeKnob::Phenotype("proportions"),
-    ShapeKnob::Changes(&["measure-upperarm-length-incr"]),
-    ShapeKnob::Changes(&["measure-lowerarm-length-incr"]),
-    ShapeKnob::Changes(&["measure-upperleg-height-incr"]),
-    ShapeKnob::Changes(&["measure-lowerleg-height-incr"]),
-    ShapeKnob::Changes(&["measure-shoulder-dist-incr"]),
-    ShapeKnob::Changes(&["hip-scale-horiz-incr"]),
-    ShapeKnob::Changes(&["torso-scale-vert-incr"]),
-    ShapeKnob::Changes(&["hip-scale-vert-incr"]),
-    ShapeKnob::Changes(&["l-foot-scale-incr", "r-foot-scale-incr"]),
-];
+/// The shape values [`fit_cmu_shape`] adjusts: the phenotype's proportions and the nine
+/// length controls of [`LENGTH_KNOBS`] (limb and trunk lengths, shoulder and hip width, foot
+/// size).
+pub const CMU_SHAPE_KNOBS: [ShapeKnob; 10] = {
+    // The phenotype's proportions, then panoman_fit's nine length controls.
+    let mut k = [ShapeKnob::Phenotype("proportions"); 10];
+    let mut i = 0;
+    while i < LENGTH_KNOBS.len() {
+        k[i + 1] = LENGTH_KNOBS[i];
+        i += 1;
+    }
+    k
+};
 
 /// The result of [`fit_cmu_shape`].
 #[derive(Clone, Debug)]

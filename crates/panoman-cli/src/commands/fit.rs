@@ -746,6 +746,7 @@ impl ResumeState {
             "model_fnv": fnv1a(&model),
             "baseline": a.baseline.is_some(),
             "cold": a.cold,
+            "calibrate_shape": a.calibrate_shape,
             "keypoints_format": a.keypoints_format.map(|f| format!("{f:?}")),
             "keypoints_unit": format!("{:?}", a.keypoints_unit),
         });
@@ -813,7 +814,7 @@ impl ResumeState {
         if header["key"] != self.key {
             return Err(bad(
                 "it was written with another model file or other options (--baseline, --cold, \
-                 --keypoints-format, --keypoints-unit)",
+                 --calibrate-shape, --keypoints-format, --keypoints-unit)",
             ));
         }
         let done = header["frames_done"]
