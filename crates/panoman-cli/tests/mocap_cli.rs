@@ -278,3 +278,78 @@ fn bad_input_is_one_line() {
     );
     let _ = std::fs::remove_dir_all(&d);
 }
+
+#[test]
+fn eval_reports_both_methods_on_every_capture() {
+    let d = dir("eval");
+    let data = d.join("data");
+    std::fs::create_dir_all(&data).unwrap();
+    let out = d.join("out");
+    // Missing captures: one line naming the file, nothing written.
+    one_line_error(
+        &panoman(&[
+            "mocap",
+            "eval",
+            "--model",
+            &model(),
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]),
+        "01_01.bvh",
+    );
+    assert!(!out.exists(), "nothing written on error");
+    // The committed excerpts under the names `panoman data fetch` writes.
+    for (from, to) in [
+        ("nick_freeform_001_head.c3d", "nick_freeform_001.c3d"),
+        ("Nick01.vsk", "Nick01.vsk"),
+        ("ThomasFechten_head.csm", "ThomasFechten.csm"),
+        ("01_01_head.bvh", "01_01.bvh"),
+    ] {
+        std::fs::copy(excerpt(from), data.join(to)).unwrap();
+    }
+    ok(panoman(&[
+        "mocap",
+        "eval",
+        "--model",
+        &model(),
+        "--data",
+        data.to_str().unwrap(),
+        "--preset",
+        "quick",
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    let s: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    for c in ["nick", "thomas"] {
+        for m in ["panoman", "lbs"] {
+            let r = &s[c]["methods"][m];
+            let h = r["held_out_marker_error_mm"]["mean"].as_f64().unwrap();
+            let fitted = r["fitted_residual_mm"]["mean"].as_f64().unwrap();
+            assert!(
+                h.is_finite() && h > 0.0 && fitted > 0.0,
+                "{c} {m}: {h} {fitted}"
+            );
+            let j = &r["jitter_m_per_s2"];
+            for k in ["mesh_vertices", "model_markers", "observed_markers"] {
+                assert!(j[k].as_f64().unwrap() > 0.0, "{c} {m} {k}");
+            }
+        }
+        assert!(out.join(format!("markers_{c}.png")).is_file());
+    }
+    for k in ["tc127", "tc127_feet"] {
+        let t = &s["cmu_01_01"][k];
+        assert!(t["panoman"]["mean_mm"].as_f64().unwrap().is_finite(), "{k}");
+        assert_eq!(
+            t["shape_calibration"]["knobs"].as_array().unwrap().len(),
+            9,
+            "{k}"
+        );
+    }
+    for png in ["residuals.png", "cmu_track.png", "cmu_worst.png"] {
+        assert!(out.join(png).is_file(), "{png}");
+    }
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -847,3 +847,69 @@ fn the_phenotype_polish_leaves_wrong_phenotype_cells() {
         polished_sum / n as f64
     );
 }
+
+#[test]
+fn temporal_prior_holds_the_previous_pose() {
+    use panoman_fit::ik::TemporalPrior;
+    let s = solver();
+    let n = fx().generator.bone_names().len();
+    // The previous frame: the rest pose; this frame's targets: the elbows bent by 30°.
+    let previous = s
+        .solve(
+            &IkTargets::all(&fx().small_set.evaluate(&small_mesh(&rest_pose()))).unwrap(),
+            &IkConfig::default(),
+        )
+        .unwrap();
+    let mut bent = rest_pose();
+    for side in ["L", "R"] {
+        bent.pose.euler_deg[bone(&format!("lowerarm01.{side}"))] = [30.0, 0.0, 0.0];
+    }
+    let targets = IkTargets::all(&fx().small_set.evaluate(&small_mesh(&bent))).unwrap();
+    let warm = |weight: f64| {
+        s.solve(
+            &targets,
+            &IkConfig {
+                initial_state: Some(previous.state.clone()),
+                temporal: Some(TemporalPrior {
+                    weights: vec![weight; n],
+                    angles: previous.state.angles.clone(),
+                }),
+                ..IkConfig::default()
+            },
+        )
+        .unwrap()
+    };
+    let elbow = |r: &panoman_fit::ik::IkResult| {
+        (r.state.angles[bone("lowerarm01.L")][0] - previous.state.angles[bone("lowerarm01.L")][0])
+            .to_degrees()
+    };
+    let (free, light, held) = (warm(0.0), warm(1e-4), warm(1e4));
+    eprintln!(
+        "elbow moved {:.2}° / {:.2}° / {:.4}° (λ_T 0 / 1e-4 / 1e4)",
+        elbow(&free),
+        elbow(&light),
+        elbow(&held)
+    );
+    // Without the prior the elbow follows its keypoints. With λ_T the optimum moves by
+    // δ ≈ g / (2 λ_T / s²), g the keypoint term's slope at the previous angle: about
+    // 2 · 22 keypoints (wrist, hand) · 0.15 m · 0.25 m/rad ≈ 1.6 m²/rad, s = 95° = 1.66 rad;
+    // λ_T = 1e4 m² gives δ ≈ 2e-4 rad ≈ 0.01° (measured with 1e2: 0.48°, the same law). A
+    // light prior ends in between.
+    assert!((elbow(&free) - 30.0).abs() < 1.0, "{}", elbow(&free));
+    assert!(elbow(&held).abs() < 0.05, "{}", elbow(&held));
+    assert!(elbow(&light) > elbow(&held) && elbow(&light) <= elbow(&free) + 1e-9);
+    // Wrong lengths are refused.
+    let e = s
+        .solve(
+            &targets,
+            &IkConfig {
+                temporal: Some(TemporalPrior {
+                    weights: vec![1.0; 3],
+                    angles: previous.state.angles.clone(),
+                }),
+                ..IkConfig::default()
+            },
+        )
+        .unwrap_err();
+    assert!(e.to_string().contains("temporal prior"), "{e}");
+}

@@ -3,7 +3,7 @@
 //! `cargo run --release -p panoman-mocap --example solve_markers -- MODEL CAPTURE [lbs|panoman] [A:B:step] [OUT]`
 //!
 //! Environment overrides for experiments (unset: the library's defaults): `VSK`, `ROUNDS`,
-//! `PRIOR`, `FOLDS`, `POSE_PRIOR`, `ITERS`, `STEP`, `RECAL`, `LAMBDA`, `CAL_FRAMES`, `SIGMA`,
+//! `PRIOR`, `FOLDS`, `POSE_PRIOR`, `TEMPORAL_PRIOR`, `ITERS`, `STEP`, `RECAL`, `LAMBDA`, `CAL_FRAMES`, `SIGMA`,
 //! `TRACK_ROUNDS`, `GLITCH`, and of the warm shell fit `CORRECTION`, `TEMPORAL`, `HANDLE`,
 //! `MU` (μ₀), `STEPS` (LM iterations per V-step), `CB` (bending weight).
 use std::path::PathBuf;
@@ -38,6 +38,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             marker_prior_m: env("PRIOR", 0.12),
             held_out_folds: env("FOLDS", 5.0) as usize,
             pose_prior: env("POSE_PRIOR", 1e-6),
+            temporal_prior: env("TEMPORAL_PRIOR", 3e-4),
             track_iterations: env("ITERS", 8.0) as usize,
             held_out_step: env("STEP", 10.0) as usize,
             held_out_recalibrate: env("RECAL", 0.0) > 0.0,
@@ -73,6 +74,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         r.times["tracking_warm_ms_per_frame"]
     );
     println!("times {:?}", r.times);
+    println!("jitter (m/s²) {:?}", r.jitter_m_per_s2);
     let mut w: Vec<(&String, &f64)> = r
         .per_marker_residual_mm
         .iter()

@@ -19,6 +19,7 @@
 //!   `data/cmu53.json`, `data/plugin_gait43.json`); [`solve`]: MoSh-style calibration,
 //!   tracking (PanoMan or LBS) and held-out marker error; [`solve_run::solve_capture`] runs it
 //!   from files; [`glitch`]: capture glitches found from the markers alone.
+//! * [`jitter::mean_acceleration`]: the jitter of a solved sequence beside the markers' own.
 //! * [`track::track_retarget`]: retargeted motion tracked from the TC-127 keypoints of its
 //!   generated meshes (PanoMan and the LBS baseline), per-vertex error and time per frame.
 //!
@@ -34,6 +35,7 @@ pub mod csm;
 mod error;
 pub mod fetch;
 pub mod glitch;
+pub mod jitter;
 pub mod marker_map;
 pub mod markers;
 pub mod retarget;

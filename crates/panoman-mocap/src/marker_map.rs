@@ -375,8 +375,24 @@ pub fn surface_normal(faces: &[[u32; 3]], normals: &[V3], tri: u32, b: V3) -> V3
     if l > 0.0 { scale(n, 1.0 / l) } else { n }
 }
 
-/// +1 when the winding's normals point away from the centroid on average, else −1.
-fn outward_sign(faces: &[[u32; 3]], x: &[V3]) -> f64 {
+/// The model positions of `map`'s markers on the mesh `x` (`faces`): each marker's surface
+/// point plus its offset along the interpolated vertex normal (`normal_sign`: +1 when the
+/// winding's normals point outward, see [`RestTemplate::normal_sign`]), metres.
+pub fn model_markers(map: &MarkerMap, faces: &[[u32; 3]], x: &[V3], normal_sign: f64) -> Vec<V3> {
+    let n = vertex_normals(faces, x, normal_sign);
+    map.markers
+        .iter()
+        .map(|m| {
+            let p = surface_point(faces, x, m.triangle, m.barycentric);
+            let nn = surface_normal(faces, &n, m.triangle, m.barycentric);
+            add(p, scale(nn, m.offset_m))
+        })
+        .collect()
+}
+
+/// +1 when the winding's normals point away from the centroid on average, else −1 (the
+/// [`RestTemplate::normal_sign`] of a closed mesh).
+pub fn outward_sign(faces: &[[u32; 3]], x: &[V3]) -> f64 {
     let c = x.iter().fold([0.0; 3], |a, p| {
         add(a, scale(*p, 1.0 / x.len().max(1) as f64))
     });

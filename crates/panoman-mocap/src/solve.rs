@@ -30,7 +30,9 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use panoman::Method;
-use panoman_fit::ik::{IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget};
+use panoman_fit::ik::{
+    IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget, TemporalPrior,
+};
 use panoman_fit::{Constraints, FitOptions, Previous, VertexHandle};
 use panoman_human::params::{GeneratorParams, ShapeParams};
 use panoman_mesh::align::rigid_align;
@@ -66,6 +68,14 @@ pub struct SolveOptions {
     pub track_rounds: usize,
     /// λ_θ of the rig's pose prior (m², see `IkConfig::pose_prior`). Default 1e-6.
     pub pose_prior: f64,
+    /// λ_T of the tracking's temporal prior toward the previous solved frame's bone angles
+    /// (m², `IkConfig::temporal`, every bone), divided by the square of the frame gap (a
+    /// velocity prior: the held-out folds, tracked every 10th frame, get a hundredth).
+    /// Default 3e-4: on nick frames 0–399 (LBS) the mesh's mean vertex acceleration
+    /// 64.5 → 30.4 m/s² (the observed markers' 16.9), held-out 9.91 → 9.87 mm, fitted
+    /// residual 5.80 → 6.08 mm; on Thomas (0–799, every 2nd) 12.9 → 7.0 m/s² (markers 6.6),
+    /// held-out 13.98 → 13.75 mm, fitted 8.01 → 7.49 mm (docs/design/mocap.md). 0: none.
+    pub temporal_prior: f64,
     /// Folds of the held-out marker error (0: none). Default 5.
     pub held_out_folds: usize,
     /// Every this many frames of the solved range are tracked per fold. Default 10.
@@ -99,6 +109,7 @@ impl Default for SolveOptions {
             track_iterations: 8,
             track_rounds: 2,
             pose_prior: 1e-6,
+            temporal_prior: 3e-4,
             held_out_folds: 5,
             held_out_step: 10,
             held_out_recalibrate: false,
@@ -234,6 +245,23 @@ pub struct SolveReport {
     /// Held-out marker error (when folds > 0).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub held_out_marker_error_mm: Option<HeldOut>,
+    /// Jitter: mean accelerations over consecutive solved frames (m/s²,
+    /// [`crate::jitter::mean_acceleration`]; `None` with fewer than three frames).
+    pub jitter_m_per_s2: Jitter,
+}
+
+/// Mean accelerations (m/s²) of a solve over its consecutive solved frames (a frame step `s`
+/// makes `dt = s / rate`): of the mesh's vertices, of the model's markers where they are
+/// observed, and of the observed markers themselves (capture glitches missing) — the same
+/// points as the model markers, so the last two compare like for like.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct Jitter {
+    /// The solved mesh's vertices.
+    pub mesh_vertices: Option<f64>,
+    /// The model markers (surface point + offset) where the marker is observed.
+    pub model_markers: Option<f64>,
+    /// The observed markers.
+    pub observed_markers: Option<f64>,
 }
 
 /// Observed positions of one frame in the map's marker order (NaN = missing).
@@ -311,15 +339,7 @@ impl MarkerSolver {
 
     /// Model marker positions (surface point + offset · normal) on a mesh.
     pub fn model_markers(&self, map: &MarkerMap, x: &[V3]) -> Vec<V3> {
-        let n = vertex_normals(self.faces(), x, self.template.normal_sign);
-        map.markers
-            .iter()
-            .map(|m| {
-                let p = surface_point(self.faces(), x, m.triangle, m.barycentric);
-                let nn = surface_normal(self.faces(), &n, m.triangle, m.barycentric);
-                add(p, scale(nn, m.offset_m))
-            })
-            .collect()
+        crate::marker_map::model_markers(map, self.faces(), x, self.template.normal_sign)
     }
 
     /// A start for a frame without a previous one: the rest pose of `phenotype`, placed by
@@ -368,6 +388,7 @@ impl MarkerSolver {
         rounds: usize,
         iterations: usize,
         sigma: f64,
+        temporal: Option<TemporalPrior>,
     ) -> Result<IkOut> {
         let inv = |e: panoman_fit::FitError| MocapError::Invalid {
             what: format!("marker IK: {e}"),
@@ -415,6 +436,7 @@ impl MarkerSolver {
                 fit_face_units: Some(false),
                 max_iterations: iterations,
                 pose_prior: self.options.pose_prior,
+                temporal: temporal.clone(),
                 initial_state: Some(state.clone()),
                 ..IkConfig::default()
             };
@@ -496,6 +518,7 @@ impl MarkerSolver {
                 3,
                 40,
                 0.15,
+                None,
             )?;
             states.push((r.result.state.clone(), r.result.posed.clone()));
         }
@@ -517,8 +540,18 @@ impl MarkerSolver {
             for (k, &f) in calib.iter().enumerate() {
                 let (mut st, mesh) = states[k].clone();
                 st.phenotype = phen;
-                let r =
-                    self.ik_frame(&map, seq.frame(f), active, st, &mesh, false, 2, 20, sigma)?;
+                let r = self.ik_frame(
+                    &map,
+                    seq.frame(f),
+                    active,
+                    st,
+                    &mesh,
+                    false,
+                    2,
+                    20,
+                    sigma,
+                    None,
+                )?;
                 states[k] = (r.result.state.clone(), r.result.posed.clone());
                 outs.push(r);
             }
@@ -707,6 +740,7 @@ impl MarkerSolver {
     ) -> Result<Vec<SolvedFrame>> {
         let mut out: Vec<SolvedFrame> = Vec::with_capacity(frames.len());
         let mut carry: Option<Carry> = None;
+        let mut last_solved: Option<usize> = None;
         for &f in frames {
             let t = Instant::now();
             let obs = seq.frame(f);
@@ -725,8 +759,10 @@ impl MarkerSolver {
                 out.push(s);
                 continue;
             }
-            let (frame, next) = self.track_frame(obs, cal, active, carry.as_ref())?;
+            let gap = last_solved.map_or(1, |p| f.saturating_sub(p));
+            let (frame, next) = self.track_frame(obs, cal, active, carry.as_ref(), gap)?;
             carry = Some(next);
+            last_solved = Some(f);
             out.push(SolvedFrame {
                 frame: f,
                 seconds: t.elapsed().as_secs_f64(),
@@ -742,22 +778,35 @@ impl MarkerSolver {
         cal: &Calibration,
         active: &[bool],
         carry: Option<&Carry>,
+        gap: usize,
     ) -> Result<(SolvedFrame, Carry)> {
         let o = self.options.clone();
         let map = &cal.map;
         let t_ik = Instant::now();
         let ik = match carry {
-            Some(c) => self.ik_frame(
-                map,
-                obs,
-                active,
-                c.state.clone(),
-                &c.mesh,
-                false,
-                o.track_rounds,
-                o.track_iterations,
-                o.robust_sigma_m,
-            )?,
+            Some(c) => {
+                // The prior is on velocity: over a gap of several frames the pose may move
+                // that many times further.
+                let temporal = (o.temporal_prior > 0.0).then(|| TemporalPrior {
+                    weights: vec![
+                        o.temporal_prior / (gap.max(1) as f64).powi(2);
+                        c.state.angles.len()
+                    ],
+                    angles: c.state.angles.clone(),
+                });
+                self.ik_frame(
+                    map,
+                    obs,
+                    active,
+                    c.state.clone(),
+                    &c.mesh,
+                    false,
+                    o.track_rounds,
+                    o.track_iterations,
+                    o.robust_sigma_m,
+                    temporal,
+                )?
+            }
             None => {
                 let st = self.cold_state(map, obs, active, cal.phenotype);
                 self.ik_frame(
@@ -770,6 +819,7 @@ impl MarkerSolver {
                     4,
                     40,
                     o.robust_sigma_m,
+                    None,
                 )?
             }
         };

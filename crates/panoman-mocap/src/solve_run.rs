@@ -9,10 +9,12 @@ use panoman_mesh::geom::V3;
 use panoman_mesh::io::write_bytes_atomically;
 
 use crate::error::{MocapError, Result};
+use crate::jitter::mean_acceleration;
 use crate::marker_map::{MarkerMap, MarkerMapFile, default_set_for, read_marker_map};
 use crate::markers::{MarkerSequence, UpAxis};
 use crate::solve::{
-    Calibration, FrameReport, MarkerSolver, SolveOptions, SolveReport, SolvedFrame, mean_max_mm,
+    Calibration, FrameReport, Jitter, MarkerSolver, SolveOptions, SolveReport, SolvedFrame,
+    mean_max_mm,
 };
 
 /// What to solve.
@@ -280,6 +282,35 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
     if let Some(h) = &held {
         times.insert("held_out_s".to_string(), h.seconds);
     }
+    let jitter = {
+        let dt = step.max(1) as f64 / seq.rate_hz;
+        let meshes: Vec<&[V3]> = solved.iter().map(|f| f.vertices.as_slice()).collect();
+        let observed: Vec<&[V3]> = solved.iter().map(|f| seq.frame(f.frame)).collect();
+        let placed: Vec<Vec<V3>> = solved
+            .iter()
+            .zip(&observed)
+            .map(|(f, obs)| {
+                solver
+                    .model_markers(&cal.map, &f.vertices)
+                    .into_iter()
+                    .zip(obs.iter())
+                    .map(|(m, o)| {
+                        if o.iter().all(|c| c.is_finite()) {
+                            m
+                        } else {
+                            [f64::NAN; 3]
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let placed: Vec<&[V3]> = placed.iter().map(Vec::as_slice).collect();
+        Jitter {
+            mesh_vertices: mean_acceleration(&meshes, dt),
+            model_markers: mean_acceleration(&placed, dt),
+            observed_markers: mean_acceleration(&observed, dt),
+        }
+    };
     let report = SolveReport {
         method: req.options.method,
         capture: req.markers.display().to_string(),
@@ -310,6 +341,7 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
         times,
         glitches,
         held_out_marker_error_mm: held,
+        jitter_m_per_s2: jitter,
     };
     Ok(SolveOutput {
         report,

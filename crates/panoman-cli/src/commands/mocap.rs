@@ -19,6 +19,9 @@ pub enum MocapCommand {
     Retarget(RetargetArgs),
     /// Write a folder of per-frame generator parameters (solve / retarget output) as BVH.
     Export(ExportArgs),
+    /// The real-capture evaluation: both marker captures and the CMU clip, PanoMan beside
+    /// LBS (held-out marker error, jitter, tracking error, pictures).
+    Eval(super::mocap_eval::MocapEvalArgs),
 }
 
 /// Arguments of `panoman mocap export`.
@@ -103,6 +106,10 @@ pub struct SolveArgs {
     /// more are treated as missing; 0 keeps every observation; default: `SolveOptions`).
     #[arg(long)]
     pub glitch_m: Option<f64>,
+    /// Weight λ_T (m²) of the tracking's temporal prior on the rig's bone angles (toward the
+    /// previous frame's; default: `SolveOptions`, 3e-4; 0: none): less jitter, a little lag.
+    #[arg(long)]
+    pub temporal_prior: Option<f64>,
     /// Calibrate each held-out fold anew without its markers (stricter than MoSh's
     /// protocol, which calibrates once with every marker and holds markers out of the
     /// per-frame solve: the default).
@@ -153,6 +160,7 @@ pub fn run(c: MocapCommand) -> Result<()> {
         MocapCommand::Solve(a) => run_solve(a),
         MocapCommand::Retarget(a) => run_retarget(a),
         MocapCommand::Export(a) => run_export(a),
+        MocapCommand::Eval(a) => super::mocap_eval::run(a),
     }
 }
 
@@ -228,10 +236,17 @@ fn run_solve(a: SolveArgs) -> Result<()> {
             calibration_frames: a.calibration_frames.unwrap_or(d.calibration_frames).max(1),
             calibration_rounds: a.calibration_rounds.unwrap_or(d.calibration_rounds).max(1),
             glitch_m: a.glitch_m.unwrap_or(d.glitch_m).max(0.0),
+            temporal_prior: a.temporal_prior.unwrap_or(d.temporal_prior),
             held_out_recalibrate: a.held_out_recalibrate,
             ..d
         },
     };
+    if !(req.options.temporal_prior >= 0.0 && req.options.temporal_prior.is_finite()) {
+        bail!(
+            "--temporal-prior {} must be a finite value ≥ 0",
+            req.options.temporal_prior
+        );
+    }
     let out = solve_capture(&model, &req)?;
     write_solve(&a.out, &out, model.faces())?;
     let r = &out.report;
@@ -252,13 +267,19 @@ fn run_solve(a: SolveArgs) -> Result<()> {
             h.unobservable.join(" ")
         );
     }
+    let j = &r.jitter_m_per_s2;
+    if let (Some(m), Some(o)) = (j.mesh_vertices, j.observed_markers) {
+        println!(
+            "jitter: mesh vertices {m:.1} m/s², observed markers {o:.1} m/s² (mean acceleration)"
+        );
+    }
     println!("wrote {}", a.out.display());
     Ok(())
 }
 
 fn run_retarget(a: RetargetArgs) -> Result<()> {
     use panoman_mocap::bvh::{CMU_UNIT_M, read_bvh};
-    use panoman_mocap::retarget::{CMU_EVAL_JOINTS, CmuRetarget, fit_cmu_shape, retarget_error};
+    use panoman_mocap::retarget::{CMU_EVAL_JOINTS, retarget_error};
     let bvh = read_bvh(&a.bvh)?.scaled(CMU_UNIT_M);
     let n = bvh.n_frames();
     // Check the tracking request before the (long) retarget.
@@ -284,14 +305,8 @@ fn run_retarget(a: RetargetArgs) -> Result<()> {
         },
         None => generator_of(a.model.as_deref())?,
     };
-    let mut shape = panoman_human::params::ShapeParams::default();
-    if a.shape_frames > 0 && n > 1 {
-        let k = a.shape_frames.min(n);
-        let frames: Vec<usize> = (0..k).map(|j| j * (n - 1) / (k - 1).max(1)).collect();
-        shape = fit_cmu_shape(&generator, &shape, &bvh, &frames, 30)?.shape;
-    }
+    let (shape, rt) = cmu_retarget(&generator, &bvh, a.shape_frames)?;
     let identity = generator.identity(&shape)?;
-    let rt = CmuRetarget::calibrate(&identity, &shape, &bvh, 0)?;
     let names = generator.bone_names();
     let rig_idx: Vec<usize> = CMU_EVAL_JOINTS
         .iter()
@@ -343,6 +358,33 @@ fn run_retarget(a: RetargetArgs) -> Result<()> {
         run_track(&a, &bvh, &rt, &spec, range, count, &model)?;
     }
     Ok(())
+}
+
+/// The retarget of a CMU clip (metres) to the rig of `generator`: the shape fitted on
+/// `shape_frames` frames spread over the clip (0: the default identity), the rest poses
+/// aligned on frame 0 (the T-pose).
+///
+/// # Errors
+/// Shape fit and calibration errors (e.g. not a CMU skeleton).
+pub fn cmu_retarget(
+    generator: &panoman_human::generator::Generator,
+    bvh: &panoman_mocap::bvh::Bvh,
+    shape_frames: usize,
+) -> Result<(
+    panoman_human::params::ShapeParams,
+    panoman_mocap::retarget::CmuRetarget,
+)> {
+    use panoman_mocap::retarget::{CmuRetarget, fit_cmu_shape};
+    let n = bvh.n_frames();
+    let mut shape = panoman_human::params::ShapeParams::default();
+    if shape_frames > 0 && n > 1 {
+        let k = shape_frames.min(n);
+        let frames: Vec<usize> = (0..k).map(|j| j * (n - 1) / (k - 1).max(1)).collect();
+        shape = fit_cmu_shape(generator, &shape, bvh, &frames, 30)?.shape;
+    }
+    let identity = generator.identity(&shape)?;
+    let rt = CmuRetarget::calibrate(&identity, &shape, bvh, 0)?;
+    Ok((shape, rt))
 }
 
 /// The 1, 5 and 15 minute load averages (`/proc/loadavg`; `None` where there is none).

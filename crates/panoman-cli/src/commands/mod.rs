@@ -14,6 +14,7 @@ pub mod fit;
 pub mod generate;
 pub mod keypoints;
 pub mod mocap;
+pub mod mocap_eval;
 pub mod pose;
 pub mod render;
 pub mod roundtrip;

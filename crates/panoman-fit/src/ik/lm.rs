@@ -194,6 +194,13 @@ impl IkSolver {
             for k in 0..3 {
                 e += cfg.pose_prior * p.axis(k, cfg).1 * a[k] * a[k];
             }
+            if let Some(t) = &cfg.temporal {
+                let a0 = t.angles.get(p.rig).copied().unwrap_or([0.0; 3]);
+                let w = t.weights.get(p.rig).copied().unwrap_or(0.0);
+                for k in 0..3 {
+                    e += w * p.axis(k, cfg).1 * (a[k] - a0[k]) * (a[k] - a0[k]);
+                }
+            }
         }
         for &b in &st.phenotype {
             e += cfg.phenotype_prior * (b - 0.5) * (b - 0.5);
@@ -258,7 +265,24 @@ impl IkSolver {
                 lo,
                 hi,
                 prior,
-            } => (st.angles[bone][axis], lo, hi, cfg.pose_prior * prior, 0.0),
+            } => {
+                // λ_θ x² + λ_T (x − x⁰)² = (λ_θ + λ_T)(x − x̄)² + const, x̄ = λ_T x⁰ / (λ_θ + λ_T).
+                let x = st.angles[bone][axis];
+                let lam = cfg.pose_prior * prior;
+                let w = cfg
+                    .temporal
+                    .as_ref()
+                    .and_then(|t| t.weights.get(bone).copied())
+                    .unwrap_or(0.0);
+                match &cfg.temporal {
+                    Some(t) if w > 0.0 && prior > 0.0 => {
+                        let x0 = t.angles.get(bone).map_or(0.0, |a| a[axis]);
+                        let lt = w * prior;
+                        (x, lo, hi, lam + lt, lt * x0 / (lam + lt))
+                    }
+                    _ => (x, lo, hi, lam, 0.0),
+                }
+            }
             Var::Phen(i) => (st.phenotype[i], 0.0, 1.0, cfg.phenotype_prior, 0.5),
             Var::Unit(j) => (st.face_units[j], 0.0, 1.0, cfg.face_unit_prior, 0.0),
         }

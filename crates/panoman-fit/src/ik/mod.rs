@@ -144,6 +144,12 @@ pub struct IkConfig {
     /// `λ_θ`: pose prior `λ_θ Σ_c Σ_a (θ_ca / s_ca)²` in m², where `s_ca` is the largest
     /// |angle| the range of axis `a` of bone `c` allows (default 1e-6).
     pub pose_prior: f64,
+    /// Temporal prior of a tracked sequence: `Σ_c λ_T,c Σ_a ((θ_ca − θ⁰_ca) / s_ca)²` in m²
+    /// toward the previous frame's angles `θ⁰` (`s_ca` as in `pose_prior`, `λ_T,c` per
+    /// bone). An angle the
+    /// targets leave free — a finger that no marker sees — then stays where it was instead
+    /// of wandering from frame to frame (jitter). `None` (default): none.
+    pub temporal: Option<TemporalPrior>,
     /// `λ_β`: phenotype prior `λ_β Σ (β_i − ½)²` in m² (default 1e-5).
     pub phenotype_prior: f64,
     /// `λ_f`: face-unit prior `λ_f Σ f_j²` in m² (default 1e-7).
@@ -205,6 +211,7 @@ impl Default for IkConfig {
             fit_phenotype: true,
             fit_face_units: None,
             pose_prior: 1e-6,
+            temporal: None,
             phenotype_prior: 1e-5,
             face_unit_prior: 1e-7,
             early_prior_scale: 3.0,
@@ -220,6 +227,16 @@ impl Default for IkConfig {
             full_extension: false,
         }
     }
+}
+
+/// [`IkConfig::temporal`]: the weights `λ_T,c` (m²) and the reference angles `θ⁰` (radians),
+/// both per rig bone in the order of [`IkState::angles`] (e.g. the previous frame's angles).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TemporalPrior {
+    /// `λ_T,c` in m² (≥ 0) per rig bone.
+    pub weights: Vec<f64>,
+    /// `θ⁰` per rig bone.
+    pub angles: Vec<[f64; 3]>,
 }
 
 /// The rig parameters the IK optimises.

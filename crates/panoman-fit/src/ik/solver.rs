@@ -601,6 +601,17 @@ impl IkSolver {
         fit_units: bool,
     ) -> Result<IkState> {
         let n_bones = self.parents.len();
+        if let Some(t) = &config.temporal
+            && (t.angles.len() != n_bones
+                || t.weights.len() != n_bones
+                || !t.angles.iter().flatten().all(|x| x.is_finite()))
+        {
+            return Err(FitError::Invalid(format!(
+                "IK temporal prior: {} reference bone angles and {} weights (expected {n_bones} each) or non-finite angles",
+                t.angles.len(),
+                t.weights.len()
+            )));
+        }
         let warm = config.initial_state.is_some();
         let mut state = match &config.initial_state {
             Some(s) => {
@@ -684,6 +695,16 @@ impl IkSolver {
 fn solve_template(config: &IkConfig) -> Result<ShapeParams> {
     for (name, v) in [
         ("pose_prior", config.pose_prior),
+        (
+            "temporal.weights",
+            config.temporal.as_ref().map_or(0.0, |t| {
+                t.weights
+                    .iter()
+                    .copied()
+                    .find(|w| !(w.is_finite() && *w >= 0.0))
+                    .unwrap_or(0.0)
+            }),
+        ),
         ("phenotype_prior", config.phenotype_prior),
         ("face_unit_prior", config.face_unit_prior),
         ("tolerance", config.tolerance),
