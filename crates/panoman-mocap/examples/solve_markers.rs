@@ -3,7 +3,7 @@
 //! `cargo run --release -p panoman-mocap --example solve_markers -- MODEL CAPTURE [lbs|panoman] [A:B:step] [OUT]`
 //!
 //! Environment overrides for experiments (unset: the library's defaults): `VSK`, `ROUNDS`,
-//! `PRIOR`, `FOLDS`, `POSE_PRIOR`, `TEMPORAL_PRIOR`, `ITERS`, `STEP`, `RECAL`, `LAMBDA`, `CAL_FRAMES`, `SIGMA`,
+//! `PRIOR`, `FOLDS`, `POSE_PRIOR`, `TEMPORAL_PRIOR`, `PATCH_SIGMA`, `PATCH_WEIGHT`, `ITERS`, `STEP`, `RECAL`, `LAMBDA`, `CAL_FRAMES`, `SIGMA`,
 //! `TRACK_ROUNDS`, `GLITCH`, and of the warm shell fit `CORRECTION`, `TEMPORAL`, `HANDLE`,
 //! `MU` (μ₀), `STEPS` (LM iterations per V-step), `CB` (bending weight).
 use std::path::PathBuf;
@@ -39,6 +39,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             held_out_folds: env("FOLDS", 5.0) as usize,
             pose_prior: env("POSE_PRIOR", 1e-6),
             temporal_prior: env("TEMPORAL_PRIOR", 3e-4),
+            patch_sigma_m: env("PATCH_SIGMA", 0.08),
+            patch_weight: env("PATCH_WEIGHT", 10.0),
             track_iterations: env("ITERS", 8.0) as usize,
             held_out_step: env("STEP", 10.0) as usize,
             held_out_recalibrate: env("RECAL", 0.0) > 0.0,

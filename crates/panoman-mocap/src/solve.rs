@@ -76,6 +76,15 @@ pub struct SolveOptions {
     /// residual 5.80 → 6.08 mm; on Thomas (0–799, every 2nd) 12.9 → 7.0 m/s² (markers 6.6),
     /// held-out 13.98 → 13.75 mm, fitted 8.01 → 7.49 mm (docs/design/mocap.md). 0: none.
     pub temporal_prior: f64,
+    /// PanoMan: σ (m) of each marker's surface patch ([`marker_patches`] on the calibrated
+    /// rest mesh): the shell fit pulls the vertices within 2σ of an observed marker by the
+    /// marker's displacement, Gaussian-weighted, so that the surface between markers follows
+    /// them (a soft-tissue field; the LBS solve has no surface stage). Default 0.08; 0: the
+    /// marker's triangle only.
+    pub patch_sigma_m: f64,
+    /// PanoMan: weight of a patch's handles relative to the marker's own (its triangle).
+    /// Default 10.
+    pub patch_weight: f64,
     /// Folds of the held-out marker error (0: none). Default 5.
     pub held_out_folds: usize,
     /// Every this many frames of the solved range are tracked per fold. Default 10.
@@ -110,6 +119,8 @@ impl Default for SolveOptions {
             track_rounds: 2,
             pose_prior: 1e-6,
             temporal_prior: 3e-4,
+            patch_sigma_m: 0.08,
+            patch_weight: 10.0,
             held_out_folds: 5,
             held_out_step: 10,
             held_out_recalibrate: false,
@@ -137,8 +148,41 @@ pub struct Calibration {
     pub mean_residual_mm: f64,
     /// Mean move of the surface points from the initial map (mm).
     pub mean_marker_shift_mm: f64,
+    /// Per marker: its surface patch on `rest` ([`marker_patches`] with
+    /// [`SolveOptions::patch_sigma_m`]), computed once.
+    pub patches: Vec<Vec<(u32, f64)>>,
     /// Wall time (s).
     pub seconds: f64,
+}
+
+/// Per marker of `map`: the vertices of `rest` (`faces`) within `2σ` of its surface point,
+/// with the Gaussian factor `exp(−d²/2σ²)` of their distance `d` (metres); empty lists for
+/// `σ ≤ 0`. PanoMan's shell fit pulls each observed marker's patch by the marker's
+/// displacement ([`SolveOptions::patch_weight`]).
+pub fn marker_patches(
+    faces: &[[u32; 3]],
+    map: &MarkerMap,
+    rest: &[V3],
+    sigma: f64,
+) -> Vec<Vec<(u32, f64)>> {
+    map.markers
+        .iter()
+        .map(|m| {
+            if sigma.is_nan() || sigma <= 0.0 {
+                return Vec::new();
+            }
+            let p = surface_point(faces, rest, m.triangle, m.barycentric);
+            rest.iter()
+                .enumerate()
+                .filter_map(|(v, q)| {
+                    let d = sub(*q, p);
+                    let d2 = dot(d, d);
+                    (d2 < 4.0 * sigma * sigma)
+                        .then(|| (v as u32, (-0.5 * d2 / (sigma * sigma)).exp()))
+                })
+                .collect()
+        })
+        .collect()
 }
 
 /// One solved frame.
@@ -575,6 +619,7 @@ impl MarkerSolver {
             / nm.max(1) as f64;
         let flat: Vec<f64> = rest.iter().flatten().copied().collect();
         let alpha = self.model.inner().shape.project(&flat);
+        let patches = marker_patches(self.faces(), &map, &rest, o.patch_sigma_m);
         Ok(Calibration {
             map,
             phenotype: phen,
@@ -583,6 +628,7 @@ impl MarkerSolver {
             frames: calib,
             mean_residual_mm: mean_res,
             mean_marker_shift_mm: 1e3 * shift,
+            patches,
             seconds: t0.elapsed().as_secs_f64(),
         })
     }
@@ -674,12 +720,15 @@ fn pick_frames(seq: &MarkerSequence, frames: &[usize], active: &[bool], n: usize
 /// Handles of the markers for the shell fit: each marker pulls its triangle's vertices
 /// (weighted by the barycentric coordinates) so that the triangle, translated, puts its
 /// marker point on `target`.
+#[allow(clippy::too_many_arguments)]
 fn marker_handles(
     faces: &[[u32; 3]],
     map: &MarkerMap,
     x: &[V3],
     targets: &[Option<V3>],
     weights: &[f64],
+    patches: &[Vec<(u32, f64)>],
+    patch_weight: f64,
 ) -> Vec<VertexHandle> {
     let mut h = Vec::new();
     for (i, m) in map.markers.iter().enumerate() {
@@ -693,6 +742,18 @@ fn marker_handles(
                 h.push(VertexHandle {
                     vertex: f[k],
                     position: add(x[f[k] as usize], shift),
+                    weight: w,
+                });
+            }
+        }
+        // The marker's surface patch follows it by the same displacement (a soft-tissue
+        // field that the shell blends between markers).
+        for &(v, g) in patches.get(i).map_or(&[][..], Vec::as_slice) {
+            let w = patch_weight * weights[i] * g;
+            if w > 1e-9 {
+                h.push(VertexHandle {
+                    vertex: v,
+                    position: add(x[v as usize], shift),
                     weight: w,
                 });
             }
@@ -897,7 +958,15 @@ impl MarkerSolver {
                 })
             })
             .collect();
-        let handles = marker_handles(&faces, &cal.map, x, &targets, &ik.weights);
+        let handles = marker_handles(
+            &faces,
+            &cal.map,
+            x,
+            &targets,
+            &ik.weights,
+            &cal.patches,
+            self.options.patch_weight,
+        );
         let previous = carry.and_then(|c| c.previous.clone());
         let opts = if previous.is_some() {
             self.options.warm_fit.clone()

@@ -224,3 +224,51 @@ fn frame_ranges_parse() {
     assert!(parse_frames("0:10:0").is_err());
     assert!(parse_frames("a:b").is_err());
 }
+
+#[test]
+fn marker_patches_are_gaussian_discs_around_the_surface_points() {
+    use panoman_mocap::marker_map::{MarkerMap, PlacedMarker, surface_point};
+    use panoman_mocap::solve::marker_patches;
+    // A 21 × 21 grid of 1 cm in the plane z = 0, two triangles per cell.
+    let n = 21usize;
+    let rest: Vec<[f64; 3]> = (0..n * n)
+        .map(|k| [(k % n) as f64 * 0.01, (k / n) as f64 * 0.01, 0.0])
+        .collect();
+    let mut faces = Vec::new();
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            let a = (j * n + i) as u32;
+            faces.push([a, a + 1, a + n as u32]);
+            faces.push([a + 1, a + n as u32 + 1, a + n as u32]);
+        }
+    }
+    let map = MarkerMap {
+        set: "test".into(),
+        topology: "grid".into(),
+        n_vertices: rest.len(),
+        markers: vec![PlacedMarker {
+            name: "M".into(),
+            triangle: 2 * (10 * (n - 1) + 10) as u32,
+            barycentric: [1.0, 0.0, 0.0],
+            offset_m: 0.01,
+            bone: "root".into(),
+        }],
+    };
+    let p = surface_point(&faces, &rest, map.markers[0].triangle, [1.0, 0.0, 0.0]);
+    assert_eq!(p, [0.1, 0.1, 0.0]);
+    let sigma = 0.03;
+    let patch = &marker_patches(&faces, &map, &rest, sigma)[0];
+    // Every vertex within 2σ = 6 cm, none beyond, each weighted exp(−d²/2σ²).
+    let inside = rest
+        .iter()
+        .filter(|q| (q[0] - 0.1).hypot(q[1] - 0.1) < 2.0 * sigma)
+        .count();
+    assert_eq!(patch.len(), inside);
+    for &(v, g) in patch {
+        let q = rest[v as usize];
+        let d = (q[0] - 0.1).hypot(q[1] - 0.1);
+        assert!(d < 2.0 * sigma);
+        assert!((g - (-0.5 * d * d / (sigma * sigma)).exp()).abs() < 1e-12);
+    }
+    assert!(marker_patches(&faces, &map, &rest, 0.0)[0].is_empty());
+}

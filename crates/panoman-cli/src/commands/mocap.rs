@@ -110,6 +110,10 @@ pub struct SolveArgs {
     /// previous frame's; default: `SolveOptions`, 3e-4; 0: none): less jitter, a little lag.
     #[arg(long)]
     pub temporal_prior: Option<f64>,
+    /// PanoMan: σ in metres of each marker's surface patch, which the shell fit pulls with
+    /// the marker (default: `SolveOptions`, 0.08; 0: the marker's triangle only).
+    #[arg(long)]
+    pub patch_sigma: Option<f64>,
     /// Calibrate each held-out fold anew without its markers (stricter than MoSh's
     /// protocol, which calibrates once with every marker and holds markers out of the
     /// per-frame solve: the default).
@@ -237,15 +241,18 @@ fn run_solve(a: SolveArgs) -> Result<()> {
             calibration_rounds: a.calibration_rounds.unwrap_or(d.calibration_rounds).max(1),
             glitch_m: a.glitch_m.unwrap_or(d.glitch_m).max(0.0),
             temporal_prior: a.temporal_prior.unwrap_or(d.temporal_prior),
+            patch_sigma_m: a.patch_sigma.unwrap_or(d.patch_sigma_m),
             held_out_recalibrate: a.held_out_recalibrate,
             ..d
         },
     };
-    if !(req.options.temporal_prior >= 0.0 && req.options.temporal_prior.is_finite()) {
-        bail!(
-            "--temporal-prior {} must be a finite value ≥ 0",
-            req.options.temporal_prior
-        );
+    for (flag, v) in [
+        ("--temporal-prior", req.options.temporal_prior),
+        ("--patch-sigma", req.options.patch_sigma_m),
+    ] {
+        if !(v >= 0.0 && v.is_finite()) {
+            bail!("{flag} {v} must be a finite value ≥ 0");
+        }
     }
     let out = solve_capture(&model, &req)?;
     write_solve(&a.out, &out, model.faces())?;
