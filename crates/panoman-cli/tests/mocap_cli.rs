@@ -184,18 +184,15 @@ fn python_bvh_joints(bvh: &Path, b: &panoman_mocap::bvh::Bvh) -> Option<Vec<Vec<
 #[test]
 fn retarget_writes_params_and_summary() {
     let d = dir("retarget");
-    ok(panoman(&[
-        "mocap",
-        "retarget",
-        "--bvh",
-        &excerpt("01_01_head.bvh"),
-        "--model",
-        &model(),
-        "--shape-frames",
-        "4",
-        "--out",
-        d.to_str().unwrap(),
-    ]));
+    let (bvh, m) = (excerpt("01_01_head.bvh"), model());
+    // `mocap retarget` of the excerpt into `out` with `extra` arguments.
+    let retarget = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["mocap", "retarget", "--bvh", &bvh, "--model", &m];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+        ok(panoman(&args));
+    };
+    retarget(&d, &["--shape-frames", "4"]);
     let s: serde_json::Value =
         serde_json::from_slice(&std::fs::read(d.join("summary.json")).unwrap()).unwrap();
     let mean = s["joint_error_mm"]["mean"].as_f64().unwrap();
@@ -203,13 +200,7 @@ fn retarget_writes_params_and_summary() {
     assert!(d.join("params_00000.json").is_file());
     // Tracked from keypoints and foot points after a shape calibration from two frames.
     let t = d.join("track");
-    ok(panoman(&[
-        "mocap",
-        "retarget",
-        "--bvh",
-        &excerpt("01_01_head.bvh"),
-        "--model",
-        &model(),
+    let track = [
         "--shape-frames",
         "0",
         "--track",
@@ -217,9 +208,8 @@ fn retarget_writes_params_and_summary() {
         "--feet",
         "--calibrate-shape",
         "2",
-        "--out",
-        t.to_str().unwrap(),
-    ]));
+    ];
+    retarget(&t, &track);
     let tr: serde_json::Value =
         serde_json::from_slice(&std::fs::read(t.join("track.json")).unwrap()).unwrap();
     let c = &tr["shape_calibration"];
@@ -263,6 +253,26 @@ fn bad_input_is_one_line() {
         "x.trc",
     );
     assert!(!o.exists(), "nothing written on error");
+    for (flag, needle) in [
+        ("--temporal-prior=-1", "--temporal-prior"),
+        ("--patch-sigma=nan", "--patch-sigma"),
+    ] {
+        one_line_error(
+            &panoman(&[
+                "mocap",
+                "solve",
+                "--markers",
+                &excerpt("nick_freeform_001_head.c3d"),
+                "--model",
+                &m,
+                flag,
+                "--out",
+                o.to_str().unwrap(),
+            ]),
+            needle,
+        );
+        assert!(!o.exists(), "nothing written on error ({flag})");
+    }
     one_line_error(
         &panoman(&[
             "mocap",

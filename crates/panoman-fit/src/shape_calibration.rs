@@ -270,8 +270,8 @@ pub struct ShapeCalibration {
     /// The template shape for the sequence's IK ([`IkConfig::initial_shape`]): the base
     /// with the fitted knobs, the six IK phenotype values at the frames' mean.
     pub shape: ShapeParams,
-    /// The knob values fitted, in [`ShapeCalibrationOptions::knobs`] order.
-    pub knob_values: Vec<f64>,
+    /// The knobs fitted (in [`ShapeCalibrationOptions::knobs`] order) with their values.
+    pub knobs: Vec<(ShapeKnob, f64)>,
     /// The calibration frames' IK results with that shape.
     pub frames: Vec<IkResult>,
     /// Mean distance of the given keypoints and handles from the model's, over the
@@ -368,7 +368,7 @@ pub fn calibrate_shape(
     let after_mm = mean_error_mm(ik, frames, &solved)?;
     Ok(ShapeCalibration {
         shape: template,
-        knob_values: v,
+        knobs: knobs.iter().copied().zip(v).collect(),
         frames: solved,
         before_mm,
         after_mm,

@@ -136,7 +136,7 @@ fn limb_lengths_are_recovered_from_keypoint_frames() {
     .unwrap();
     eprintln!(
         "keypoints {:.2} → {:.2} mm, knobs {:?} ({} iterations, {:.1} s)",
-        cal.before_mm, cal.after_mm, cal.knob_values, cal.iterations, cal.seconds
+        cal.before_mm, cal.after_mm, cal.knobs, cal.iterations, cal.seconds
     );
     // The six phenotype values cannot express these lengths: the IK with the default
     // lengths leaves ~2 mm of mean keypoint error (the body keypoints 5–25 mm; the face and
@@ -165,14 +165,18 @@ fn limb_lengths_are_recovered_from_keypoint_frames() {
     assert!(after < 0.25 * before, "{before} → {after} mm");
     // The foot size, seen by no segment of the body, is found from the heel–toe pairs of the
     // foot points (rigid over the frames).
-    let foot = cal.knob_values[8];
+    let foot = cal.knobs[8].1;
     assert!(
         (foot - TRUTH[8]).abs() < 0.15,
         "foot size {foot} vs {}",
         TRUTH[8]
     );
-    // The shape holds the knobs; the IK results are of that shape.
-    for (k, v) in LENGTH_KNOBS.iter().zip(&cal.knob_values) {
+    // The shape holds the knobs (LENGTH_KNOBS, in order); the IK results are of that shape.
+    assert_eq!(
+        cal.knobs.iter().map(|k| k.0).collect::<Vec<_>>(),
+        LENGTH_KNOBS
+    );
+    for (k, v) in &cal.knobs {
         assert_eq!(k.get(&cal.shape), *v);
     }
     assert_eq!(cal.frames.len(), 6);

@@ -339,9 +339,19 @@ impl MarkerSolver {
     /// Builds the solver (the model must carry its LBS rig).
     ///
     /// # Errors
-    /// [`MocapError::Invalid`]: no embedded rig, solver setup failures.
+    /// [`MocapError::Invalid`]: a temporal prior, patch σ or patch weight that is negative or
+    /// not finite (naming the option and its flag), no embedded rig, solver setup failures.
     pub fn new(model: &panoman::Model, options: SolveOptions) -> Result<MarkerSolver> {
         let inv = |what: String| MocapError::Invalid { what };
+        for (name, v) in [
+            ("temporal_prior (--temporal-prior)", options.temporal_prior),
+            ("patch_sigma_m (--patch-sigma)", options.patch_sigma_m),
+            ("patch_weight", options.patch_weight),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(inv(format!("{name} = {v} must be finite and ≥ 0")));
+            }
+        }
         let rig = panoman_fit::Rig::for_model(model.inner(), || {
             Err(panoman_fit::FitError::Invalid(
                 "the model file has no embedded LBS rig (run `panoman embed-rig`)".into(),

@@ -290,10 +290,9 @@ pub fn track_generated(
         lbs.set_shape(Some(cal.shape.clone()));
         Some(TrackCalibration {
             frames: picked.iter().map(|&i| frames[i].0).collect(),
-            knobs: ShapeCalibrationOptions::default()
+            knobs: cal
                 .knobs
                 .iter()
-                .zip(&cal.knob_values)
                 .map(|(k, v)| (k.name().to_string(), *v))
                 .collect(),
             before_mm: cal.before_mm,

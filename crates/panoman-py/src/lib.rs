@@ -1164,7 +1164,7 @@ impl PyTracker {
         let tr = &self.inner;
         let cal = run(py, || lock(tr).calibrate_shape(&frames, &opts))?;
         let knobs = PyDict::new(py);
-        for (k, v) in opts.knobs.iter().zip(&cal.knob_values) {
+        for (k, v) in &cal.knobs {
             knobs.set_item(k.name(), v)?;
         }
         let d = PyDict::new(py);

@@ -413,8 +413,9 @@ impl Fitter {
 
     /// Calibrates the identity's lengths from several frames of targets (MoSh's shape stage
     /// for keypoints, [`panoman_fit::shape_calibration`]): each frame fitted by the IK, then
-    /// the length knobs of `opts` fitted to every frame's keypoints and handles with the
-    /// poses held, twice by default. Give the result's `shape` to
+    /// the length knobs of `opts` fitted to the frames' segment lengths (keypoint pairs on
+    /// one segment, rigid handle pairs) with the poses held, alternating with the IK (3
+    /// rounds by default). Give the result's `shape` to
     /// [`crate::Tracker::set_shape`]. Frames are best spread over the sequence (different
     /// poses make the lengths observable); 4–8 suffice.
     ///

@@ -245,9 +245,7 @@ impl Tracker {
                     IkStart::Cold => None,
                 };
                 // The PanoMan sequence's IK settings, so both methods share the IK.
-                let ikc = self
-                    .sequence
-                    .ik_config(&self.sequence.ik.clone(), warm.is_some());
+                let ikc = self.sequence.ik_config(&self.sequence.ik, warm.is_some());
                 let q = self.request.quality();
                 let (r, attempts) = self.fitter.lbs(&c, &ikc, &q, warm)?;
                 self.lbs_state = Some(r.state.clone());

@@ -475,10 +475,9 @@ fn track_sequence(
             .map_err(|e| anyhow!("shape calibration: {e}"))?;
         Some(json!({
             "frames": picked.iter().map(|&i| frames[i].display().to_string()).collect::<Vec<_>>(),
-            "knobs": opts
+            "knobs": cal
                 .knobs
                 .iter()
-                .zip(&cal.knob_values)
                 .map(|(k, v)| (k.name(), *v))
                 .collect::<std::collections::BTreeMap<_, _>>(),
             "keypoint_error_before_mm": cal.before_mm,

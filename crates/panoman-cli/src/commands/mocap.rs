@@ -246,14 +246,6 @@ fn run_solve(a: SolveArgs) -> Result<()> {
             ..d
         },
     };
-    for (flag, v) in [
-        ("--temporal-prior", req.options.temporal_prior),
-        ("--patch-sigma", req.options.patch_sigma_m),
-    ] {
-        if !(v >= 0.0 && v.is_finite()) {
-            bail!("{flag} {v} must be a finite value ≥ 0");
-        }
-    }
     let out = solve_capture(&model, &req)?;
     write_solve(&a.out, &out, model.faces())?;
     let r = &out.report;

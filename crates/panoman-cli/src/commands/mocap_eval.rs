@@ -193,8 +193,7 @@ pub fn run(a: MocapEvalArgs) -> Result<()> {
         ));
         summary.insert(
             c.name.into(),
-            json!({"file": file.display().to_string(), "frames": format!("{}:{}:{}", frames.0,
-                frames.1.map(|e| e.to_string()).unwrap_or_default(), frames.2),
+            json!({"file": file.display().to_string(), "frames": range_spec(frames),
                 "methods": per_method}),
         );
     }
@@ -215,6 +214,14 @@ pub fn run(a: MocapEvalArgs) -> Result<()> {
     }
     println!("wrote {}", a.out.display());
     Ok(())
+}
+
+/// A frame range as `A:B:step` (`B` empty: to the end), the syntax of `--frames`.
+fn range_spec((a, b, step): (usize, Option<usize>, usize)) -> String {
+    format!(
+        "{a}:{}:{step}",
+        b.map(|e| e.to_string()).unwrap_or_default()
+    )
 }
 
 fn method_name(m: Method) -> &'static str {
@@ -344,14 +351,6 @@ fn cmu_tracking(
             .render(View::Side)
             .save_png(&a.out.join("cmu_worst.png"))?;
     }
-    out.insert(
-        "frames".into(),
-        json!(format!(
-            "{}:{}:{}",
-            range.0,
-            range.1.map(|e| e.to_string()).unwrap_or_default(),
-            range.2
-        )),
-    );
+    out.insert("frames".into(), json!(range_spec(range)));
     Ok(serde_json::Value::Object(out))
 }
