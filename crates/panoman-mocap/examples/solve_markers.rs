@@ -34,7 +34,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         up: None,
         options: SolveOptions {
             method,
-            calibration_rounds: env("ROUNDS", 8.0) as usize,
+            calibration_rounds: env("ROUNDS", 12.0) as usize,
             marker_prior_m: env("PRIOR", 0.12),
             held_out_folds: env("FOLDS", 5.0) as usize,
             pose_prior: env("POSE_PRIOR", 1e-6),
@@ -45,7 +45,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             held_out_step: env("STEP", 10.0) as usize,
             held_out_recalibrate: env("RECAL", 0.0) > 0.0,
             placement_prior_weight: env("LAMBDA", 1.0),
-            calibration_frames: env("CAL_FRAMES", 24.0) as usize,
+            calibration_frames: env("CAL_FRAMES", 64.0) as usize,
             robust_sigma_m: env("SIGMA", 0.03),
             track_rounds: env("TRACK_ROUNDS", 2.0) as usize,
             glitch_m: env("GLITCH", 0.04),

@@ -96,10 +96,10 @@ pub struct SolveArgs {
     /// Every this many solved frames are tracked per held-out fold.
     #[arg(long, default_value_t = 10)]
     pub held_out_step: usize,
-    /// Calibration frames (spread over the solved range; default: `SolveOptions`).
+    /// Calibration frames (spread over the solved range; default: `SolveOptions`, 64).
     #[arg(long)]
     pub calibration_frames: Option<usize>,
-    /// Pose / marker-placement rounds of the calibration (default: `SolveOptions`).
+    /// Pose / marker-placement rounds of the calibration (default: `SolveOptions`, 12).
     #[arg(long)]
     pub calibration_rounds: Option<usize>,
     /// Capture-glitch threshold in metres (markers that leave their rigid neighbours by
