@@ -25,7 +25,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Some("lbs") => panoman::Method::Lbs,
         _ => panoman::Method::PanoMan,
     };
-    let warm = panoman_fit::fit::warm_fit_options();
+    // Every knob defaults to the library's own default (no copies of the values here).
+    let d = SolveOptions::default();
+    let warm = d.warm_fit.clone();
     let req = SolveRequest {
         markers: PathBuf::from(&a[2]),
         vsk: std::env::var_os("VSK").map(PathBuf::from),
@@ -34,21 +36,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         up: None,
         options: SolveOptions {
             method,
-            calibration_rounds: env("ROUNDS", 12.0) as usize,
-            marker_prior_m: env("PRIOR", 0.12),
-            held_out_folds: env("FOLDS", 5.0) as usize,
-            pose_prior: env("POSE_PRIOR", 1e-6),
-            temporal_prior: env("TEMPORAL_PRIOR", 3e-4),
-            patch_sigma_m: env("PATCH_SIGMA", 0.08),
-            patch_weight: env("PATCH_WEIGHT", 10.0),
-            track_iterations: env("ITERS", 8.0) as usize,
-            held_out_step: env("STEP", 10.0) as usize,
-            held_out_recalibrate: env("RECAL", 0.0) > 0.0,
-            placement_prior_weight: env("LAMBDA", 1.0),
-            calibration_frames: env("CAL_FRAMES", 64.0) as usize,
-            robust_sigma_m: env("SIGMA", 0.03),
-            track_rounds: env("TRACK_ROUNDS", 2.0) as usize,
-            glitch_m: env("GLITCH", 0.04),
+            calibration_rounds: env("ROUNDS", d.calibration_rounds as f64) as usize,
+            marker_prior_m: env("PRIOR", d.marker_prior_m),
+            held_out_folds: env("FOLDS", d.held_out_folds as f64) as usize,
+            pose_prior: env("POSE_PRIOR", d.pose_prior),
+            temporal_prior: env("TEMPORAL_PRIOR", d.temporal_prior),
+            patch_sigma_m: env("PATCH_SIGMA", d.patch_sigma_m),
+            patch_weight: env("PATCH_WEIGHT", d.patch_weight),
+            track_iterations: env("ITERS", d.track_iterations as f64) as usize,
+            held_out_step: env("STEP", d.held_out_step as f64) as usize,
+            held_out_recalibrate: env("RECAL", f64::from(u8::from(d.held_out_recalibrate))) > 0.0,
+            placement_prior_weight: env("LAMBDA", d.placement_prior_weight),
+            calibration_frames: env("CAL_FRAMES", d.calibration_frames as f64) as usize,
+            robust_sigma_m: env("SIGMA", d.robust_sigma_m),
+            track_rounds: env("TRACK_ROUNDS", d.track_rounds as f64) as usize,
+            glitch_m: env("GLITCH", d.glitch_m),
             warm_fit: panoman_fit::FitOptions {
                 correction: env("CORRECTION", f64::from(u8::from(warm.correction))) > 0.0,
                 temporal_vertex_weight: env("TEMPORAL", warm.temporal_vertex_weight),
@@ -58,7 +60,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 c_b: env("CB", warm.c_b),
                 ..warm
             },
-            ..SolveOptions::default()
+            ..d
         },
     };
     let out = solve_capture(&model, &req)?;
