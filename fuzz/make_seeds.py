@@ -70,6 +70,9 @@ bev = struct.pack(">12f", 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1)
 bef = b"".join(b"\x03" + struct.pack(">3i", *t) for t in [(0, 1, 2), (0, 2, 3)])
 put("ply", "binbe.ply", ply_hdr.format(fmt="binary_big_endian", nv=4, nf=2).encode() + bev + bef)
 put("ply", "lying_counts.ply", ply_hdr.format(fmt="binary_little_endian", nv=4000000000, nf=4000000000).encode() + binv)
+# Fuzz finding (2026-12-04): an element without properties and a lying count; its rows take
+# no bytes, so the binary reader looped for ever (a libFuzzer timeout).
+put("ply", "empty_element_rows.ply", "ply\nformat binary_big_endian 1.0\nelement padding 99999999999994\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n".encode() + struct.pack(">3f", 0, 0, 1))
 put("ply", "points_double.ply", "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty double x\nproperty double y\nproperty double z\nproperty uchar red\nend_header\n".encode()
     + b"".join(f64(i, i * 0.5, 1) + b"\x07" for i in range(3)))
 

@@ -653,6 +653,19 @@ fn ply_malformed_inputs_are_errors_naming_the_file() {
     );
     let huge = bin_head.replace("face 1", "face 18446744073709551615");
     assert_format_error(ply(huge.as_bytes()), "test_input.ply", &["truncated"]);
+    // An element without properties: its rows take no bytes, so a lying count would be
+    // read for ever (a fuzz timeout); both readers refuse the header.
+    let empty = bin_head.replace(
+        "element vertex 1",
+        "element padding 99999999999994\nelement vertex 1",
+    );
+    let needles = ["element 'padding' declares 99999999999994 rows but no properties"];
+    assert_format_error(ply(empty.as_bytes()), "test_input.ply", &needles);
+    assert_format_error(
+        parse_ply_points(empty.as_bytes(), Path::new("test_input.ply")),
+        "test_input.ply",
+        &needles,
+    );
 }
 
 #[test]

@@ -323,6 +323,14 @@ fn parse_header(bytes: &[u8]) -> std::result::Result<Header, String> {
     let Some(encoding) = encoding else {
         return Err("header has no 'format' line".into());
     };
+    // A row without properties holds no data: in a binary body any count of them fits in
+    // zero bytes, so a lying count would be read (as nothing) for ever.
+    if let Some(e) = elements.iter().find(|e| e.count > 0 && e.props.is_empty()) {
+        return Err(format!(
+            "element '{}' declares {} rows but no properties",
+            e.name, e.count
+        ));
+    }
     Ok(Header {
         encoding,
         elements,
