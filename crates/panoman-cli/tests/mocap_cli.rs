@@ -349,7 +349,7 @@ fn eval_reports_both_methods_on_every_capture() {
         }
         assert!(out.join(format!("markers_{c}.png")).is_file());
     }
-    for k in ["tc127", "tc127_feet"] {
+    for k in ["tc127", "tc127_contacts", "tc127_feet"] {
         let t = &s["cmu_01_01"][k];
         assert!(t["panoman"]["mean_mm"].as_f64().unwrap().is_finite(), "{k}");
         assert_eq!(
@@ -357,6 +357,11 @@ fn eval_reports_both_methods_on_every_capture() {
             9,
             "{k}"
         );
+    }
+    // The contact prior found planted feet in the excerpt (its frames stand and jump).
+    let down = &s["cmu_01_01"]["tc127_contacts"]["contacts"]["frames_down"];
+    for side in 0..2 {
+        assert!(down[side].as_u64().unwrap() > 0, "contacts: {down}");
     }
     for png in ["residuals.png", "cmu_track.png", "cmu_worst.png"] {
         assert!(out.join(png).is_file(), "{png}");

@@ -226,6 +226,30 @@ fn one() -> f64 {
     1.0
 }
 
+/// A level constraint between two vertices: `n̂ᵀ(x_a − x_b) = d` — the height of vertex `a`
+/// above vertex `b` along the unit direction `n̂` (e.g. world up) is `d` metres. A sole held
+/// level on the floor is two of them per foot (heel against big toe and against small toe,
+/// [`crate::fit::LevelPair`]s built by `panoman::feet`): a foot-contact prior that needs no
+/// observation of the foot. The skeletal IK fits each as a point-to-plane target of the
+/// combination `x_a − x_b` ([`crate::ik::PointTarget`] with rows `[(a, 1), (b, −1)]` and
+/// normal `n̂`), with the handles' final stage ([`crate::pipeline::ik_fit`]); the shell fit
+/// starts from that IK and follows its guidance pose there.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct LevelPair {
+    /// The upper vertex `a` (model template index).
+    pub a: u32,
+    /// The lower vertex `b`.
+    pub b: u32,
+    /// Direction `n` along which heights are measured (any length > 0; normalised).
+    pub up: V3,
+    /// Target height `d` of `a` above `b` along `n̂`, metres.
+    pub offset: f64,
+    /// Relative weight, in keypoint units (1 = one keypoint's squared distance).
+    #[serde(default = "one")]
+    pub weight: f64,
+}
+
 /// The constraint set of one fit.
 #[derive(Clone, Debug, Default)]
 pub struct Constraints {
@@ -233,6 +257,8 @@ pub struct Constraints {
     pub keypoints: KeypointsFile,
     /// Vertex handles.
     pub handles: Vec<VertexHandle>,
+    /// Level constraints between vertex pairs (e.g. a planted foot's sole; [`LevelPair`]).
+    pub levels: Vec<LevelPair>,
     /// A point cloud (metres) and optional unit normals.
     pub points: Option<(Vec<V3>, Option<Vec<V3>>)>,
     /// Parameter edits: α (when non-empty) and the β blocks present here are held fixed.
@@ -505,6 +531,24 @@ impl Fitter {
             if !h.position.iter().all(|x| x.is_finite()) || h.weight.is_nan() || h.weight < 0.0 {
                 return Err(FitError::Invalid(format!(
                     "handle {i}: non-finite position or negative weight"
+                )));
+            }
+        }
+        for (i, l) in c.levels.iter().enumerate() {
+            if l.a as usize >= nv || l.b as usize >= nv || l.a == l.b {
+                return Err(FitError::Invalid(format!(
+                    "level {i}: vertices {} and {} out of range or equal (the model has {nv} vertices)",
+                    l.a, l.b
+                )));
+            }
+            let ok = l.up.iter().all(|x| x.is_finite())
+                && norm(l.up) > 1e-12
+                && l.offset.is_finite()
+                && l.weight.is_finite()
+                && l.weight >= 0.0;
+            if !ok {
+                return Err(FitError::Invalid(format!(
+                    "level {i}: zero or non-finite direction, non-finite offset or negative weight"
                 )));
             }
         }

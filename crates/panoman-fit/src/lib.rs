@@ -15,7 +15,8 @@ pub mod shape_calibration;
 
 pub use error::{FitError, Result};
 pub use fit::{
-    Constraints, FitOptions, FitReport, FitResult, Fitter, Init, Placement, Previous, VertexHandle,
+    Constraints, FitOptions, FitReport, FitResult, Fitter, Init, LevelPair, Placement, Previous,
+    VertexHandle,
 };
 pub use pipeline::{
     IkIcpOptions, Rig, Sequence, SequenceState, WARM_IK_TOLERANCE, fit_frame, ik_config_for_noise,

@@ -18,7 +18,7 @@ use panoman_human::generator::{Generator, GeneratorOptions};
 use panoman_human::keypoints::{KeypointSet, load_or_build};
 use panoman_human::outputs::{OutputTopology, TopologyMap};
 use panoman_human::template::{full_template, small_template};
-use panoman_mesh::geom::{V3, norm};
+use panoman_mesh::geom::{V3, norm, scale};
 use panoman_mesh::shell::PointConstraint;
 use panoman_model::model::PanoManModel;
 use rayon::prelude::*;
@@ -141,7 +141,8 @@ pub fn ik_fit(ik: &IkSolver, c: &Constraints, cfg: &IkConfig) -> Result<IkResult
 }
 
 /// The vertex handles of `c` as point targets of the IK ([`IkSolver::solve_with_points`],
-/// one vertex each, the handle's weight in keypoint units): the final stage again, warm from
+/// one vertex each, the handle's weight in keypoint units), and its level pairs as
+/// point-to-plane targets of `x_a − x_b` ([`crate::fit::LevelPair`]): the final stage again, warm from
 /// `r`, in the ranges `r` was solved in, with the keypoints and the handles. A handle on a
 /// part that no keypoint places — e.g. a heel or a toe, since TC-127's body stops at the
 /// ankles — then moves the rig (the foot's flexion) instead of only the shell fit's surface
@@ -153,19 +154,26 @@ fn handle_pass(
     cfg: &IkConfig,
     r: IkResult,
 ) -> Result<IkResult> {
-    if c.handles.is_empty() {
+    if c.handles.is_empty() && c.levels.is_empty() {
         return Ok(r);
     }
-    let points: Vec<PointTarget> = c
-        .handles
-        .iter()
-        .map(|h| PointTarget {
-            rows: vec![(h.vertex, 1.0)],
-            position: h.position,
-            weight: h.weight,
-            normal: None,
-        })
-        .collect();
+    let handles = c.handles.iter().map(|h| PointTarget {
+        rows: vec![(h.vertex, 1.0)],
+        position: h.position,
+        weight: h.weight,
+        normal: None,
+    });
+    // A level pair: the point x_a − x_b against the plane through d·n̂ with normal n̂.
+    let levels = c.levels.iter().map(|l| {
+        let n = scale(l.up, 1.0 / norm(l.up));
+        PointTarget {
+            rows: vec![(l.a, 1.0), (l.b, -1.0)],
+            position: scale(n, l.offset),
+            weight: l.weight,
+            normal: Some(n),
+        }
+    });
+    let points: Vec<PointTarget> = handles.chain(levels).collect();
     let warm = IkConfig {
         initial_state: Some(r.state.clone()),
         ..cfg.clone()

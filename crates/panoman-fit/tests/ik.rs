@@ -458,7 +458,16 @@ fn point_model_matches_the_mesh_and_finite_differences() {
     let jaw = f.generator.rig().index("jaw").unwrap();
     p.pose.euler_deg[jaw] = [8.0, 0.5, -1.0];
     let mesh = small_mesh(&p);
-    let points = surface_points(&mesh, 37);
+    let mut points = surface_points(&mesh, 37);
+    // A level pair's point (`LevelPair`: x_a − x_b, coefficients of opposite sign, on vertices
+    // of different bones, point-to-plane).
+    let (a, b) = (7usize, mesh.len() - 5);
+    points.push(PointTarget {
+        rows: vec![(a as u32, 1.0), (b as u32, -1.0)],
+        position: std::array::from_fn(|c| mesh[a][c] - mesh[b][c]),
+        weight: 1.0,
+        normal: Some([0.0, 0.0, 1.0]),
+    });
     let state = IkState::from_params(&p, f.generator.bone_names().len());
     let model = s.model_points(&state, &p.shape, &points).unwrap();
     let err = model
@@ -788,6 +797,102 @@ fn foot_handles_place_the_feet() {
     assert!(eb < 1.0 && eb * 5.0 < ea, "vertices {ea} → {eb} mm");
     assert_eq!(b.stages.last().unwrap().name, "handles");
     assert_eq!(b.stages.last().unwrap().n_points, feet.len());
+}
+
+/// Level pairs reach the IK (`ik_fit`'s handle pass, `Constraints::levels`): a foot flexed
+/// down is invisible to TC-127, so the keypoints alone leave it near rest; two level pairs
+/// per foot (heel above big toe and above small toe, with the truth's height differences
+/// along +Z — what a planted foot's contact prior gives) recover its flexion without any
+/// foot position, and the pairs' height differences within a millimetre.
+#[test]
+fn level_pairs_set_the_foot_flexion() {
+    use panoman_fit::fit::LevelPair;
+    use panoman_human::keypoints::KeypointsFile;
+    let s = solver();
+    let mut truth = rest_pose();
+    truth.pose.euler_deg[bone("foot.L")] = [30.0, 0.0, 0.0];
+    truth.pose.euler_deg[bone("foot.R")] = [-20.0, 0.0, 0.0];
+    let mesh = small_mesh(&truth);
+    let rest = small_mesh(&GeneratorParams::default());
+    // Heel (rearmost sole vertex) and the most forward sole vertices, medial and lateral.
+    let low = rest.iter().map(|v| v[2]).fold(f64::INFINITY, f64::min);
+    let mut levels = Vec::new();
+    for side in [1.0, -1.0] {
+        let sole: Vec<usize> = (0..rest.len())
+            .filter(|&i| rest[i][0] * side > 0.0 && rest[i][2] < low + 0.03)
+            .collect();
+        let mid = sole.iter().map(|&i| rest[i][0].abs()).sum::<f64>() / sole.len() as f64;
+        let by = |keep: &dyn Fn(usize) -> bool, k: &dyn Fn(usize) -> f64| {
+            *sole
+                .iter()
+                .filter(|&&i| keep(i))
+                .min_by(|&&a, &&b| k(a).total_cmp(&k(b)))
+                .unwrap()
+        };
+        let heel = by(&|_| true, &|i| -rest[i][1]);
+        for toe in [
+            by(&|i| rest[i][0].abs() < mid, &|i| rest[i][1]),
+            by(&|i| rest[i][0].abs() >= mid, &|i| rest[i][1]),
+        ] {
+            levels.push(LevelPair {
+                a: heel as u32,
+                b: toe as u32,
+                up: [0.0, 0.0, 2.0],
+                offset: mesh[heel][2] - mesh[toe][2],
+                weight: 1.0,
+            });
+        }
+    }
+    let keypoints = KeypointsFile::from_all(&fx().small_set.evaluate(&mesh));
+    let only = panoman_fit::Constraints {
+        keypoints,
+        ..Default::default()
+    };
+    let with = panoman_fit::Constraints {
+        levels: levels.clone(),
+        ..only.clone()
+    };
+    let flexion_err = |r: &panoman_fit::ik::IkResult| {
+        ["foot.L", "foot.R"]
+            .iter()
+            .map(|b| {
+                (r.state.angles[bone(b)][0].to_degrees() - truth.pose.euler_deg[bone(b)][0]).abs()
+            })
+            .fold(0.0, f64::max)
+    };
+    let level_err = |v: &[[f64; 3]]| {
+        levels
+            .iter()
+            .map(|l| (v[l.a as usize][2] - v[l.b as usize][2] - l.offset).abs())
+            .fold(0.0, f64::max)
+    };
+    let cfg = IkConfig::default();
+    let a = panoman_fit::ik_fit(s, &only, &cfg).unwrap();
+    let b = panoman_fit::ik_fit(s, &with, &cfg).unwrap();
+    let (_, ea) = vertex_errors(&a.posed, &mesh);
+    let (_, eb) = vertex_errors(&b.posed, &mesh);
+    eprintln!(
+        "levels: flexion keypoints only {:.1}° off (levels {:.1} mm, vertices {ea:.2} mm), \
+         with level pairs {:.2}° (levels {:.3} mm, vertices {eb:.2} mm)",
+        flexion_err(&a),
+        level_err(&a.posed) * 1e3,
+        flexion_err(&b),
+        level_err(&b.posed) * 1e3,
+    );
+    assert!(
+        flexion_err(&a) > 10.0,
+        "keypoints alone: {}°",
+        flexion_err(&a)
+    );
+    assert!(flexion_err(&b) < 3.0, "with levels: {}°", flexion_err(&b));
+    assert!(
+        level_err(&b.posed) < 1e-3,
+        "level residual {} m",
+        level_err(&b.posed)
+    );
+    assert!(eb * 2.0 < ea, "vertices {ea} → {eb} mm");
+    assert_eq!(b.stages.last().unwrap().name, "handles");
+    assert_eq!(b.stages.last().unwrap().n_points, levels.len());
 }
 
 /// The phenotype polish of `ik_fit` (`IkConfig::phenotype_polish`): never a higher objective

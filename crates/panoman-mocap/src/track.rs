@@ -130,16 +130,18 @@ pub struct TrackReport {
     pub foot_points: Vec<(String, u32)>,
     /// The shape calibration, with [`TrackOptions::shape_frames`] > 0.
     pub calibration: Option<TrackCalibration>,
+    /// The contact prior, with [`TrackOptions::contacts`].
+    pub contacts: Option<TrackContacts>,
     /// Ground truth and both fits of PanoMan's worst frame (`panoman.worst_frame`; metres,
     /// the model's topology).
     #[serde(skip)]
     pub worst: Option<MeshTriple>,
 }
 
-pub use panoman::feet::{FOOT_POINT_NAMES, foot_points};
+pub use panoman::feet::{ContactOptions, FOOT_POINT_NAMES, FootAnchors, FootContacts, foot_points};
 
 /// What the trackers of [`track_generated`] are given besides the keypoints.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TrackOptions {
     /// The six foot points as vertex handles (module docs).
     pub feet: bool,
@@ -148,6 +150,24 @@ pub struct TrackOptions {
     /// points with `feet`; both trackers then hold the calibrated lengths,
     /// [`Tracker::set_shape`]); 0: none, the IK's six phenotype values only.
     pub shape_frames: usize,
+    /// The foot–floor contact prior ([`panoman::feet::FootContacts`]): contacts detected
+    /// from the frames' own ankle keypoints, each planted foot's sole held level by the IK.
+    /// No observation beyond TC-127.
+    pub contacts: Option<ContactOptions>,
+    /// Source frame rate, Hz (the times of the contact detector's ankle speeds; set by
+    /// [`track_retarget`] from the BVH). Needed with `contacts`.
+    pub frame_rate: f64,
+}
+
+/// The contact prior of a [`track_generated`] run.
+#[derive(Clone, Debug, Serialize)]
+pub struct TrackContacts {
+    /// Per foot (left, right) the floor level of the ankle, metres along up.
+    pub floor: [f64; 2],
+    /// Per foot the number of frames with contact weight ≥ ½.
+    pub frames_down: [usize; 2],
+    /// Per foot the mean contact weight over the frames.
+    pub mean_weight: [f64; 2],
 }
 
 /// The shape calibration of a [`track_generated`] run.
@@ -202,6 +222,12 @@ fn stats(
 
 fn inv(what: impl Into<String>) -> MocapError {
     MocapError::Invalid { what: what.into() }
+}
+
+/// The TC-127 index of an ankle keypoint.
+fn ankle_index(name: &str) -> Result<usize> {
+    panoman_human::keypoints::keypoint_index(name)
+        .ok_or_else(|| inv(format!("keypoint '{name}' is not in TC-127")))
 }
 
 /// Tracks the meshes of `frames` — `(source frame index, generator parameters)` in order —
@@ -302,6 +328,41 @@ pub fn track_generated(
     } else {
         None
     };
+    let contacts = match &opts.contacts {
+        Some(co) => {
+            if !(opts.frame_rate.is_finite() && opts.frame_rate > 0.0) {
+                return Err(inv(format!(
+                    "contacts need the frame rate (got {} Hz)",
+                    opts.frame_rate
+                )));
+            }
+            let (la, ra) = (ankle_index("l_ankle")?, ankle_index("r_ankle")?);
+            let ankles = frames
+                .iter()
+                .map(|(f, p)| {
+                    let t = truth_of(*f, p)?.1;
+                    let at = |k| {
+                        t.keypoints
+                            .points
+                            .get(&k)
+                            .copied()
+                            .ok_or_else(|| inv(format!("frame {f}: no ankle keypoint")))
+                    };
+                    Ok((*f as f64 / opts.frame_rate, [at(la)?, at(ra)?]))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            let fc = FootContacts::detect(&ankles, co).map_err(|e| inv(e.to_string()))?;
+            let soles = model
+                .sole_levels()
+                .map_err(|e| inv(format!("sole levels: {e}")))?;
+            let points = model
+                .foot_points()
+                .map_err(|e| inv(format!("foot points: {e}")))?;
+            Some((fc, soles, points))
+        }
+        None => None,
+    };
+    let mut anchors = [FootAnchors::default(), FootAnchors::default()];
     let mut rows: Vec<TrackFrame> = Vec::with_capacity(frames.len());
     let mut worst: Option<MeshTriple> = None;
     let mut gen_s = 0.0;
@@ -309,15 +370,29 @@ pub fn track_generated(
         let t = Instant::now();
         let (truth, targets) = truth_of(*f, p)?;
         gen_s += t.elapsed().as_secs_f64();
+        let (mut t_pm, mut t_lbs) = (targets.clone(), targets);
+        if let Some((fc, soles, points)) = &contacts {
+            let levels = fc.levels(k, soles);
+            let w = fc.weights[k];
+            let aw = fc.options.weight;
+            t_pm.levels = levels.clone();
+            t_lbs.levels = levels;
+            t_pm.handles.extend(anchors[0].handles(w, points, aw));
+            t_lbs.handles.extend(anchors[1].handles(w, points, aw));
+        }
         let t = Instant::now();
         let a = pm
-            .track(&targets)
+            .track(&t_pm)
             .map_err(|e| inv(format!("frame {f}: PanoMan: {e}")))?;
         let panoman_ms = t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
         let b = lbs
-            .track(&targets)
+            .track(&t_lbs)
             .map_err(|e| inv(format!("frame {f}: LBS: {e}")))?;
+        if let Some((fc, _, points)) = &contacts {
+            anchors[0].update(fc.weights[k], points, &a.vertices);
+            anchors[1].update(fc.weights[k], points, &b.vertices);
+        }
         let lbs_ms = t.elapsed().as_secs_f64() * 1e3;
         let row = TrackFrame {
             frame: *f,
@@ -353,6 +428,21 @@ pub fn track_generated(
             .map(|(n, &v)| ((*n).to_string(), v))
             .collect(),
         calibration,
+        contacts: contacts.map(|(fc, _, _)| {
+            let n = fc.weights.len().max(1) as f64;
+            let per = |s: usize| {
+                (
+                    fc.weights.iter().filter(|w| w[s] >= 0.5).count(),
+                    fc.weights.iter().map(|w| w[s]).sum::<f64>() / n,
+                )
+            };
+            let (l, r) = (per(0), per(1));
+            TrackContacts {
+                floor: fc.floor,
+                frames_down: [l.0, r.0],
+                mean_weight: [l.1, r.1],
+            }
+        }),
         frames: rows,
         worst,
     })
@@ -374,5 +464,9 @@ pub fn track_retarget(
     let frames = select_frames(bvh.n_frames(), range)?;
     let params: Vec<(usize, GeneratorParams)> =
         frames.iter().map(|&f| (f, rt.params(bvh, f))).collect();
+    let opts = TrackOptions {
+        frame_rate: bvh.rate_hz(),
+        ..opts
+    };
     track_generated(model, &params, opts, progress)
 }

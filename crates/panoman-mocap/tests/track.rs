@@ -121,6 +121,7 @@ fn foot_points_sit_on_the_soles_and_join_the_targets() {
     let feet = TrackOptions {
         feet: true,
         shape_frames: 0,
+        ..TrackOptions::default()
     };
     let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), feet, &mut |_, _, _| {}).unwrap();
     let names: Vec<&str> = rep.foot_points.iter().map(|(n, _)| n.as_str()).collect();
@@ -135,6 +136,7 @@ fn foot_points_sit_on_the_soles_and_join_the_targets() {
     let cal = TrackOptions {
         feet: true,
         shape_frames: 2,
+        ..TrackOptions::default()
     };
     let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), cal, &mut |_, _, _| {}).unwrap();
     let c = rep.calibration.expect("calibrated");
@@ -144,4 +146,84 @@ fn foot_points_sit_on_the_soles_and_join_the_targets() {
     assert!(c.knobs.iter().all(|(_, v)| v.abs() <= 1.0));
     assert!(c.before_mm.is_finite() && c.after_mm.is_finite());
     assert!(rep.panoman.mean_mm.is_finite() && rep.lbs.mean_mm.is_finite());
+}
+
+/// The foot–floor contact prior (`TrackOptions::contacts`) on the excerpt: the sole level
+/// pairs sit on the foot points with their rest height differences, the excerpt's standing
+/// frames are detected as planted, both trackers run with the prior, and bad uses are
+/// errors (no frame rate; a level pair on one vertex).
+#[test]
+fn contact_prior_tracks_the_excerpt() {
+    use panoman_mocap::track::{ContactOptions, track_generated};
+    let model = panoman::Model::load(panoman::training::small_model(None).expect("small model"))
+        .expect("loads");
+    let feet = model.foot_points().unwrap();
+    let soles = model.sole_levels().unwrap();
+    for (s, pair) in soles.iter().enumerate() {
+        for (k, l) in pair.iter().enumerate() {
+            assert_eq!((l.a, l.b), (feet[3 * s + 2], feet[3 * s + k]));
+            assert!(l.offset.abs() < 0.03, "both on the sole: {}", l.offset);
+            assert_eq!((l.up, l.weight), ([0.0, 0.0, 1.0], 1.0));
+        }
+    }
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/01_01_head.bvh");
+    let bvh = read_bvh(&path).unwrap().scaled(CMU_UNIT_M);
+    let shape = ShapeParams::default();
+    let rig = model.inner().rig.clone().unwrap();
+    let id = rig.generator.identity(&shape).unwrap();
+    let rt = CmuRetarget::calibrate(&id, &shape, &bvh, 0).unwrap();
+    let opts = TrackOptions {
+        contacts: Some(ContactOptions::default()),
+        ..TrackOptions::default()
+    };
+    let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), opts, &mut |_, _, _| {}).unwrap();
+    let c = rep.contacts.expect("contacts reported");
+    let n = rep.frames.len();
+    eprintln!(
+        "contacts: {:?} of {n} frames down, PanoMan {:.2} mm, LBS {:.2} mm",
+        c.frames_down, rep.panoman.mean_mm, rep.lbs.mean_mm
+    );
+    // The excerpt starts in a T-pose: the left foot stands (12 of 14 frames measured), the
+    // right one shuffles (weight 0.3 on average).
+    assert!(
+        c.frames_down.iter().all(|&d| d <= n) && c.frames_down.iter().sum::<usize>() > 0,
+        "{c:?}"
+    );
+    assert!(
+        c.mean_weight.iter().all(|w| (0.0..=1.0).contains(w)),
+        "{c:?}"
+    );
+    assert!(rep.panoman.mean_mm.is_finite() && rep.lbs.mean_mm.is_finite());
+    // track_generated needs the frame rate for the ankle speeds.
+    let frames = vec![(0, rt.params(&bvh, 0))];
+    let no_rate = TrackOptions {
+        contacts: Some(ContactOptions::default()),
+        ..TrackOptions::default()
+    };
+    let e = track_generated(&model, &frames, no_rate, &mut |_, _, _| {}).unwrap_err();
+    assert!(e.to_string().contains("frame rate"), "{e}");
+    // A level pair on one vertex is refused by the fit's constraint check.
+    let mut fitter = panoman::Fitter::new(&model).unwrap();
+    let truth_kp = {
+        let p = rt.params(&bvh, 0);
+        let v = rig.map.map(
+            model.output_topology().unwrap(),
+            &rig.generator
+                .identity(&p.shape)
+                .unwrap()
+                .pose(&p.pose)
+                .vertices,
+        );
+        model.keypoints(&v).unwrap()
+    };
+    let mut t = panoman::Targets::from_keypoints(&truth_kp);
+    t.levels = vec![panoman::LevelPair {
+        b: soles[0][0].a,
+        ..soles[0][0].clone()
+    }];
+    let e = fitter
+        .fit(&t, &panoman::FitRequest::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("level 0"), "{e}");
 }

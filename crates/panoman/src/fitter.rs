@@ -299,6 +299,7 @@ impl Fitter {
         let c = Constraints {
             keypoints: t.keypoints.clone(),
             handles: t.handles.clone(),
+            levels: t.levels.clone(),
             points: t
                 .points
                 .as_ref()

@@ -67,7 +67,7 @@ pub use feet::{FOOT_POINT_NAMES, foot_points};
 pub use fitter::{FitOutput, FitReport, FitRequest, Fitter, IkReport, IkStage, Method, MotionData};
 pub use generator::Generator;
 pub use model::{BlockInfo, BlockName, Correction, Encoder, Model};
-pub use panoman_fit::fit::{GroupResidual, StageReport, VertexHandle};
+pub use panoman_fit::fit::{GroupResidual, LevelPair, StageReport, VertexHandle};
 pub use panoman_fit::shape_calibration::{
     LENGTH_KNOBS, ShapeCalibration, ShapeCalibrationOptions, ShapeKnob,
 };

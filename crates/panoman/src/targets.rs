@@ -2,7 +2,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use panoman_fit::fit::VertexHandle;
+use panoman_fit::fit::{LevelPair, VertexHandle};
 use panoman_human::keypoints::{KeypointsFile, keypoint_index};
 use panoman_mesh::geom::{MAX_COORDINATE, V3, is_in_bounds};
 use panoman_mesh::io;
@@ -26,6 +26,9 @@ pub struct Targets {
     pub keypoints: KeypointsFile,
     /// Vertex handles: template vertex → target position (metres), with a relative weight.
     pub handles: Vec<VertexHandle>,
+    /// Level constraints between vertex pairs, `n̂ᵀ(x_a − x_b) = d` (metres; e.g. the soles
+    /// of planted feet, [`crate::feet::FootContacts`]), fitted by the skeletal IK.
+    pub levels: Vec<LevelPair>,
     /// A point cloud fitted by ICP (skeletal ICP of the initializer, then the shell fit's
     /// point-to-plane passes).
     pub points: Option<PointCloud>,

@@ -8,7 +8,8 @@
 //!   markers beside the observed markers' own).
 //! * **CMU `01_01`**: retargeted to the rig (shape fitted on 24 frames), its generated meshes
 //!   tracked from their TC-127 keypoints by both methods ([`track_retarget`]), with the limb
-//!   lengths calibrated from 8 frames, without and with six foot points.
+//!   lengths calibrated from 8 frames: from the keypoints alone, with the foot–floor contact
+//!   prior ([`ContactOptions`]), and with six foot points.
 //! * **Pictures**: per marker capture the PanoMan frame with the largest fitted residual and
 //!   the LBS solve of it, observed markers drawn (red) with the model's markers (blue); the
 //!   CMU worst frame (truth, PanoMan, LBS); per-frame residual and tracking-error plots.
@@ -27,7 +28,7 @@ use panoman_mesh::io::write_bytes_atomically;
 use panoman_mocap::marker_map::{model_markers, outward_sign};
 use panoman_mocap::solve::SolveOptions;
 use panoman_mocap::solve_run::{SolveOutput, SolveRequest, load_capture, solve_capture};
-use panoman_mocap::track::{TrackOptions, TrackReport, track_retarget};
+use panoman_mocap::track::{ContactOptions, TrackOptions, TrackReport, track_retarget};
 use serde_json::json;
 
 use crate::plot::{Series, line_panels};
@@ -279,7 +280,8 @@ fn render_markers(
 }
 
 /// The CMU clip: retargeted (shape fitted on 24 frames), tracked from TC-127 keypoints with
-/// the limb lengths calibrated from 8 frames, without and with the six foot points.
+/// the limb lengths calibrated from 8 frames: alone, with the foot–floor contact prior, and
+/// with the six foot points.
 fn cmu_tracking(
     a: &MocapEvalArgs,
     bvh_path: &Path,
@@ -300,17 +302,26 @@ fn cmu_tracking(
     let mut out = serde_json::Map::new();
     let mut panels = Vec::new();
     let mut worst: Option<TrackReport> = None;
-    for feet in [false, true] {
-        eprintln!(
-            "CMU 01_01: tracking from TC-127 keypoints{} …",
-            if feet { " and foot points" } else { "" }
-        );
+    // (key, foot points, contact prior, panel title); the last one's worst frame is rendered.
+    let variants = [
+        ("tc127", false, false, "CMU 01_01 from TC-127"),
+        (
+            "tc127_contacts",
+            false,
+            true,
+            "CMU 01_01 from TC-127 + contact prior",
+        ),
+        ("tc127_feet", true, false, "CMU 01_01 from TC-127 + feet"),
+    ];
+    for (key, feet, contacts, title) in variants {
+        eprintln!("CMU 01_01: tracking, {key} …");
         let opts = TrackOptions {
             feet,
             shape_frames: 8,
+            contacts: contacts.then(ContactOptions::default),
+            ..TrackOptions::default()
         };
         let rep = track_retarget(model, &rt, &bvh, range, opts, &mut |_, _, _| {})?;
-        let key = if feet { "tc127_feet" } else { "tc127" };
         table.push(format!(
             "cmu      {key:<10} tracked: PanoMan {:>6.2} mm (median {:.2}, worst {:.2} at frame {}), LBS {:>6.2} mm; warm {:.0} / {:.0} ms/frame",
             rep.panoman.mean_mm,
@@ -324,14 +335,14 @@ fn cmu_tracking(
         out.insert(
             key.into(),
             json!({"panoman": rep.panoman, "lbs": rep.lbs, "shape_calibration": rep.calibration,
-                "foot_points": rep.foot_points, "per_frame": rep.frames}),
+                "foot_points": rep.foot_points, "contacts": rep.contacts, "per_frame": rep.frames}),
         );
         let s = |f: fn(&panoman_mocap::track::TrackFrame) -> f64, name: &str| Series {
             name: name.into(),
             points: rep.frames.iter().map(|r| (r.frame as f64, f(r))).collect(),
         };
         panels.push((
-            format!("CMU 01_01 from TC-127{}", if feet { " + feet" } else { "" }),
+            title.to_string(),
             "mean vertex error (mm)".to_string(),
             vec![
                 s(|r| r.panoman.all_mean, "panoman"),
