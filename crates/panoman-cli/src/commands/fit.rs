@@ -3,6 +3,7 @@
 
 use anyhow::{Context, Result, anyhow};
 use clap::{Args, ValueEnum};
+use panoman::feet::{ContactOptions, FootAnchors, FootContacts};
 use panoman::{
     FitOutput, FitReport, FitRequest, Fitter, IkStart, Method, Model, Params, Targets, Tracker,
     read_handles, read_points,
@@ -20,6 +21,37 @@ use std::time::Instant;
 pub enum Baseline {
     /// The LBS rig alone (skeletal IK with pose, phenotype and face units).
     Lbs,
+}
+
+/// World up axis of a keypoint sequence (`panoman track --up`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum UpAxis {
+    /// +X.
+    X,
+    /// +Y (e.g. OpenPose's 3D output in a Y-up world).
+    Y,
+    /// +Z (panoman's own frame, Vicon lab frames).
+    Z,
+    /// −X.
+    NegX,
+    /// −Y (CMU Panoptic, OpenCV camera frames).
+    NegY,
+    /// −Z.
+    NegZ,
+}
+
+impl UpAxis {
+    /// The unit vector.
+    pub fn vector(self) -> [f64; 3] {
+        match self {
+            UpAxis::X => [1.0, 0.0, 0.0],
+            UpAxis::Y => [0.0, 1.0, 0.0],
+            UpAxis::Z => [0.0, 0.0, 1.0],
+            UpAxis::NegX => [-1.0, 0.0, 0.0],
+            UpAxis::NegY => [0.0, -1.0, 0.0],
+            UpAxis::NegZ => [0.0, 0.0, -1.0],
+        }
+    }
 }
 
 /// Arguments of `panoman fit`.
@@ -141,6 +173,19 @@ pub struct TrackArgs {
     /// summary.json gets `shape_calibration`. 0: the IK's six phenotype values only.
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub calibrate_shape: usize,
+    /// Foot–floor contact prior (for keypoints without foot points, e.g. TC-127): a foot
+    /// whose ankle keypoint is within 2–5 cm of its lowest height in the sequence and slower
+    /// than 0.25–0.6 m/s counts as planted; its sole is then held level (heel and toes at
+    /// their rest heights) and its heel and toes stay where they landed. Needs --fps;
+    /// summary.json gets `contacts` (docs/design/mocap.md).
+    #[arg(long, requires = "fps")]
+    pub contacts: bool,
+    /// Frame rate of the keypoint files, Hz (the ankle speeds of --contacts).
+    #[arg(long, value_name = "HZ")]
+    pub fps: Option<f64>,
+    /// World up axis of the keypoints (for --contacts).
+    #[arg(long, value_enum, default_value = "z")]
+    pub up: UpAxis,
     /// Continue an interrupted run into the same --out: skip the frames whose outputs the
     /// checkpoint in DIR/track-resume/ records as complete and go on from its tracker state
     /// (same outputs as an uninterrupted run, bit for bit); without a checkpoint, start at
@@ -463,6 +508,11 @@ fn track_sequence(
         },
         ..Default::default()
     };
+    let contacts = if a.contacts {
+        Some(SequenceContacts::new(a, model, frames, &targets)?)
+    } else {
+        None
+    };
     let start = if a.cold { IkStart::Cold } else { IkStart::Warm };
     let fitter = Fitter::with_assets(model, a.assets.as_deref())?;
     let mut tracker = Tracker::with_fitter(fitter, req, start);
@@ -490,8 +540,9 @@ fn track_sequence(
     let setup_s = t_setup.elapsed().as_secs_f64();
     std::fs::create_dir_all(out_dir).with_context(|| out_dir.display().to_string())?;
     let mut resume = ResumeState::open(a, out_dir)?;
+    let mut anchors = FootAnchors::default();
     let done = if a.resume {
-        resume.restore(&mut tracker, frames)?
+        resume.restore(&mut tracker, frames, &mut anchors)?
     } else {
         resume.reset()?;
         0
@@ -506,9 +557,20 @@ fn track_sequence(
     let mut rows: Vec<serde_json::Value> = resume.rows.clone();
     for (f, (path, t)) in frames.iter().zip(&targets).enumerate().skip(done) {
         let stem = frame_stem(path, f);
+        let with_contacts;
+        let t = match &contacts {
+            Some(c) => {
+                with_contacts = c.targets(f, t, &anchors);
+                &with_contacts
+            }
+            None => t,
+        };
         let out = tracker
             .track(t)
             .map_err(|e| anyhow!("{}", e.in_file(path)))?;
+        if let Some(c) = &contacts {
+            anchors.update(c.found.weights[f], &c.points, &out.vertices);
+        }
         write_params(
             &out_dir.join(format!("{stem}.params.json")),
             &out,
@@ -519,7 +581,7 @@ fn track_sequence(
             &TriMesh::new(out.vertices.clone(), model.faces().to_vec()),
         )?;
         let row = frame_row(&stem, &out.report);
-        resume.record(&tracker, path, &row)?;
+        resume.record(&tracker, &anchors, path, &row)?;
         rows.push(row);
         bar.inc(1);
     }
@@ -553,6 +615,7 @@ fn track_sequence(
         "not_converged_frames": totals.not_converged,
         "ik_retried": totals.retried,
         "shape_calibration": calibration,
+        "contacts": contacts.as_ref().map(SequenceContacts::summary),
         "per_frame": rows,
     });
     write_json(&out_dir.join("summary.json"), &summary)?;
@@ -693,6 +756,122 @@ fn fnv1a(bytes: &[u8]) -> String {
     format!("{h:016x}")
 }
 
+/// The foot–floor contact prior of one sequence (`--contacts`): contacts detected from the
+/// frames' ankle keypoints, the model's sole level pairs and foot points.
+struct SequenceContacts {
+    found: FootContacts,
+    soles: [[panoman::LevelPair; 2]; 2],
+    points: [u32; 6],
+}
+
+impl SequenceContacts {
+    /// Detects the contacts of `targets` (frame `i` at `i / fps` s); every frame needs both
+    /// ankle keypoints.
+    fn new(
+        a: &TrackArgs,
+        model: &Model,
+        frames: &[PathBuf],
+        targets: &[Targets],
+    ) -> Result<SequenceContacts> {
+        let fps = a.fps.unwrap_or(0.0);
+        if !(fps.is_finite() && fps > 0.0) {
+            return Err(anyhow!("--fps must be a positive frame rate (got {fps})"));
+        }
+        let idx = |n: &str| panoman_human::keypoints::keypoint_index(n).expect("TC-127 name");
+        let (la, ra) = (idx("l_ankle"), idx("r_ankle"));
+        let ankles = targets
+            .iter()
+            .zip(frames)
+            .enumerate()
+            .map(|(i, (t, p))| {
+                let at = |k: usize, name: &str| {
+                    t.keypoints.points.get(&k).copied().ok_or_else(|| {
+                        anyhow!(
+                            "{}: no {name} keypoint; --contacts needs both ankles in every frame",
+                            p.display()
+                        )
+                    })
+                };
+                Ok((i as f64 / fps, [at(la, "l_ankle")?, at(ra, "r_ankle")?]))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let options = ContactOptions {
+            up: a.up.vector(),
+            ..ContactOptions::default()
+        };
+        Ok(SequenceContacts {
+            found: FootContacts::detect(&ankles, &options).map_err(|e| {
+                let dir = frames[0].parent().unwrap_or(Path::new("."));
+                anyhow!("{}: {e}", dir.display())
+            })?,
+            soles: model.sole_levels()?,
+            points: model.foot_points()?,
+        })
+    }
+
+    /// Frame `f`'s targets with the sole level pairs and the anchors of its planted feet.
+    fn targets(&self, f: usize, t: &Targets, anchors: &FootAnchors) -> Targets {
+        let mut t = t.clone();
+        t.levels.extend(self.found.levels(f, &self.soles));
+        t.handles.extend(anchors.handles(
+            self.found.weights[f],
+            &self.points,
+            self.found.options.weight,
+        ));
+        t
+    }
+
+    /// summary.json's `contacts`: floor levels, frames down per foot, per-frame weights.
+    fn summary(&self) -> serde_json::Value {
+        let w = &self.found.weights;
+        let down = |s: usize| w.iter().filter(|x| x[s] >= 0.5).count();
+        json!({
+            "floor_ankle_height_m": self.found.floor,
+            "frames_down": [down(0), down(1)],
+            "weights": w,
+        })
+    }
+}
+
+/// The foot anchors as checkpoint JSON: per foot `null` or the 9 coordinates' f64 bits (exact).
+fn anchors_to_json(a: &FootAnchors) -> serde_json::Value {
+    json!(a.anchors.map(|f| f.map(|p| {
+        p.as_flattened()
+            .iter()
+            .map(|x| x.to_bits())
+            .collect::<Vec<u64>>()
+    })))
+}
+
+/// Inverse of [`anchors_to_json`]; `None` for a malformed value. A header without anchors
+/// (no --contacts) gives none.
+fn anchors_from_json(v: &serde_json::Value) -> Option<FootAnchors> {
+    let mut out = FootAnchors::default();
+    let Some(feet) = v.as_array() else {
+        return v.is_null().then_some(out);
+    };
+    if feet.len() != 2 {
+        return None;
+    }
+    for (s, f) in feet.iter().enumerate() {
+        if f.is_null() {
+            continue;
+        }
+        let bits: Vec<u64> = f
+            .as_array()?
+            .iter()
+            .map(serde_json::Value::as_u64)
+            .collect::<Option<_>>()?;
+        if bits.len() != 9 {
+            return None;
+        }
+        out.anchors[s] = Some(std::array::from_fn(|k| {
+            std::array::from_fn(|c| f64::from_bits(bits[3 * k + c]))
+        }));
+    }
+    Some(out)
+}
+
 /// First bytes of DIR/track-resume/state.bin.
 const RESUME_MAGIC: &[u8; 8] = b"PMTRKRS1";
 
@@ -748,6 +927,7 @@ impl ResumeState {
             "calibrate_shape": a.calibrate_shape,
             "keypoints_format": a.keypoints_format.map(|f| format!("{f:?}")),
             "keypoints_unit": format!("{:?}", a.keypoints_unit),
+            "contacts": a.contacts.then(|| json!({"fps": a.fps, "up": format!("{:?}", a.up)})),
         });
         Ok(ResumeState {
             dir,
@@ -780,7 +960,12 @@ impl ResumeState {
 
     /// `--resume`: restores the tracker from the checkpoint; returns the number of frames
     /// already complete (0 without a checkpoint, after [`ResumeState::reset`]).
-    fn restore(&mut self, tracker: &mut Tracker, frames: &[PathBuf]) -> Result<usize> {
+    fn restore(
+        &mut self,
+        tracker: &mut Tracker,
+        frames: &[PathBuf],
+        anchors: &mut FootAnchors,
+    ) -> Result<usize> {
         let sp = self.state_path();
         let bytes = match std::fs::read(&sp) {
             Ok(b) => b,
@@ -813,7 +998,8 @@ impl ResumeState {
         if header["key"] != self.key {
             return Err(bad(
                 "it was written with another model file or other options (--baseline, --cold, \
-                 --calibrate-shape, --keypoints-format, --keypoints-unit)",
+                 --calibrate-shape, --keypoints-format, --keypoints-unit, --contacts, --fps, \
+                 --up)",
             ));
         }
         let done = header["frames_done"]
@@ -854,6 +1040,8 @@ impl ResumeState {
         if rows.len() != done {
             return Err(bad("rows.jsonl has fewer frames than the checkpoint"));
         }
+        *anchors = anchors_from_json(&header["anchors"])
+            .ok_or_else(|| bad("unreadable foot anchors in the checkpoint header"))?;
         tracker
             .restore(&bytes[16 + hlen..])
             .map_err(|e| bad(&e.to_string()))?;
@@ -872,7 +1060,13 @@ impl ResumeState {
     }
 
     /// Records a frame whose outputs are written: appends its row, then checkpoints.
-    fn record(&mut self, tracker: &Tracker, path: &Path, row: &serde_json::Value) -> Result<()> {
+    fn record(
+        &mut self,
+        tracker: &Tracker,
+        anchors: &FootAnchors,
+        path: &Path,
+        row: &serde_json::Value,
+    ) -> Result<()> {
         use std::io::Write;
         let input = std::fs::read(path).with_context(|| path.display().to_string())?;
         let line = json!({"frame": row["frame"], "input": fnv1a(&input), "row": row});
@@ -885,7 +1079,8 @@ impl ResumeState {
         })()
         .with_context(|| rp.display().to_string())?;
         self.rows.push(row.clone());
-        let header = serde_json::to_vec(&json!({"frames_done": self.rows.len(), "key": self.key}))?;
+        let header = serde_json::to_vec(&json!({"frames_done": self.rows.len(), "key": self.key,
+            "anchors": anchors_to_json(anchors)}))?;
         let mut bytes = RESUME_MAGIC.to_vec();
         bytes.extend_from_slice(&(header.len() as u64).to_le_bytes());
         bytes.extend_from_slice(&header);
