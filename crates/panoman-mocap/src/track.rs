@@ -138,7 +138,7 @@ pub struct TrackReport {
     pub worst: Option<MeshTriple>,
 }
 
-pub use panoman::feet::{ContactOptions, FOOT_POINT_NAMES, FootAnchors, FootContacts, foot_points};
+pub use panoman::feet::{ContactOptions, ContactPrior, FOOT_POINT_NAMES, foot_points};
 
 /// What the trackers of [`track_generated`] are given besides the keypoints.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -328,41 +328,32 @@ pub fn track_generated(
     } else {
         None
     };
-    let contacts = match &opts.contacts {
-        Some(co) => {
-            if !(opts.frame_rate.is_finite() && opts.frame_rate > 0.0) {
-                return Err(inv(format!(
-                    "contacts need the frame rate (got {} Hz)",
-                    opts.frame_rate
-                )));
-            }
-            let (la, ra) = (ankle_index("l_ankle")?, ankle_index("r_ankle")?);
-            let ankles = frames
-                .iter()
-                .map(|(f, p)| {
-                    let t = truth_of(*f, p)?.1;
-                    let at = |k| {
-                        t.keypoints
-                            .points
-                            .get(&k)
-                            .copied()
-                            .ok_or_else(|| inv(format!("frame {f}: no ankle keypoint")))
-                    };
-                    Ok((*f as f64 / opts.frame_rate, [at(la)?, at(ra)?]))
-                })
-                .collect::<Result<Vec<_>>>()?;
-            let fc = FootContacts::detect(&ankles, co).map_err(|e| inv(e.to_string()))?;
-            let soles = model
-                .sole_levels()
-                .map_err(|e| inv(format!("sole levels: {e}")))?;
-            let points = model
-                .foot_points()
-                .map_err(|e| inv(format!("foot points: {e}")))?;
-            Some((fc, soles, points))
+    if let Some(co) = &opts.contacts {
+        if !(opts.frame_rate.is_finite() && opts.frame_rate > 0.0) {
+            return Err(inv(format!(
+                "contacts need the frame rate (got {} Hz)",
+                opts.frame_rate
+            )));
         }
-        None => None,
-    };
-    let mut anchors = [FootAnchors::default(), FootAnchors::default()];
+        let (la, ra) = (ankle_index("l_ankle")?, ankle_index("r_ankle")?);
+        let ankles = frames
+            .iter()
+            .map(|(f, p)| {
+                let t = truth_of(*f, p)?.1;
+                let at = |k| {
+                    t.keypoints
+                        .points
+                        .get(&k)
+                        .copied()
+                        .ok_or_else(|| inv(format!("frame {f}: no ankle keypoint")))
+                };
+                Ok((*f as f64 / opts.frame_rate, [at(la)?, at(ra)?]))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let prior = ContactPrior::new(model, &ankles, co).map_err(|e| inv(e.to_string()))?;
+        pm.set_contacts(Some(prior.clone()));
+        lbs.set_contacts(Some(prior));
+    }
     let mut rows: Vec<TrackFrame> = Vec::with_capacity(frames.len());
     let mut worst: Option<MeshTriple> = None;
     let mut gen_s = 0.0;
@@ -370,29 +361,15 @@ pub fn track_generated(
         let t = Instant::now();
         let (truth, targets) = truth_of(*f, p)?;
         gen_s += t.elapsed().as_secs_f64();
-        let (mut t_pm, mut t_lbs) = (targets.clone(), targets);
-        if let Some((fc, soles, points)) = &contacts {
-            let levels = fc.levels(k, soles);
-            let w = fc.weights[k];
-            let aw = fc.options.weight;
-            t_pm.levels = levels.clone();
-            t_lbs.levels = levels;
-            t_pm.handles.extend(anchors[0].handles(w, points, aw));
-            t_lbs.handles.extend(anchors[1].handles(w, points, aw));
-        }
         let t = Instant::now();
         let a = pm
-            .track(&t_pm)
+            .track(&targets)
             .map_err(|e| inv(format!("frame {f}: PanoMan: {e}")))?;
         let panoman_ms = t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
         let b = lbs
-            .track(&t_lbs)
+            .track(&targets)
             .map_err(|e| inv(format!("frame {f}: LBS: {e}")))?;
-        if let Some((fc, _, points)) = &contacts {
-            anchors[0].update(fc.weights[k], points, &a.vertices);
-            anchors[1].update(fc.weights[k], points, &b.vertices);
-        }
         let lbs_ms = t.elapsed().as_secs_f64() * 1e3;
         let row = TrackFrame {
             frame: *f,
@@ -428,19 +405,13 @@ pub fn track_generated(
             .map(|(n, &v)| ((*n).to_string(), v))
             .collect(),
         calibration,
-        contacts: contacts.map(|(fc, _, _)| {
-            let n = fc.weights.len().max(1) as f64;
-            let per = |s: usize| {
-                (
-                    fc.weights.iter().filter(|w| w[s] >= 0.5).count(),
-                    fc.weights.iter().map(|w| w[s]).sum::<f64>() / n,
-                )
-            };
-            let (l, r) = (per(0), per(1));
+        contacts: pm.contacts().map(|p| {
+            let w = &p.contacts.weights;
+            let n = w.len().max(1) as f64;
             TrackContacts {
-                floor: fc.floor,
-                frames_down: [l.0, r.0],
-                mean_weight: [l.1, r.1],
+                floor: p.contacts.floor,
+                frames_down: p.frames_down(),
+                mean_weight: [0, 1].map(|s| w.iter().map(|x| x[s]).sum::<f64>() / n),
             }
         }),
         frames: rows,

@@ -216,6 +216,29 @@ fn contact_prior_tracks_the_excerpt() {
         );
         model.keypoints(&v).unwrap()
     };
+    // The prior on two frames: each apply adds the frame's level pairs (the truth's frame 0
+    // stands: four), a third frame is an error, and a frame without an ankle is named.
+    use panoman::feet::ContactPrior;
+    let two = vec![panoman::Targets::from_keypoints(&truth_kp); 2];
+    let mut prior =
+        ContactPrior::from_targets(&model, &two, 30.0, &ContactOptions::default()).unwrap();
+    let mesh = vec![[0.0; 3]; model.n_vertices()];
+    for _ in 0..2 {
+        assert_eq!(prior.apply(&two[0]).unwrap().levels.len(), 4);
+        prior.advance(&mesh);
+    }
+    assert!(prior.apply(&two[0]).is_err());
+    let mut missing = two.clone();
+    let la = panoman::keypoint_names()
+        .iter()
+        .position(|n| n == "l_ankle")
+        .unwrap();
+    missing[1].keypoints.points.remove(&la);
+    let e = ContactPrior::from_targets(&model, &missing, 30.0, &ContactOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("frame 1 has no l_ankle"), "{e}");
+    assert!(ContactPrior::from_targets(&model, &two, 0.0, &ContactOptions::default()).is_err());
     let mut t = panoman::Targets::from_keypoints(&truth_kp);
     t.levels = vec![panoman::LevelPair {
         b: soles[0][0].a,

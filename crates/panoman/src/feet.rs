@@ -322,3 +322,121 @@ impl FootAnchors {
         }
     }
 }
+
+/// The foot–floor contact prior of one sequence, applied frame by frame: its
+/// [`FootContacts`], the model's sole level pairs and foot points, the [`FootAnchors`] of the
+/// planted feet, and the index of the next frame. Give it to a tracker
+/// ([`crate::Tracker::set_contacts`]), which adds the frame's level pairs and anchor handles
+/// to its targets ([`ContactPrior::apply`]) and advances it after each fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ContactPrior {
+    /// The detected contacts (one weight pair per frame of the sequence).
+    pub contacts: FootContacts,
+    /// Per foot the sole level pairs ([`Model::sole_levels`]).
+    pub soles: [[LevelPair; 2]; 2],
+    /// The foot points ([`Model::foot_points`]).
+    pub points: [u32; 6],
+    /// The anchors of the planted feet, from the fits so far.
+    pub anchors: FootAnchors,
+    /// The sequence index of the next frame to fit.
+    pub next: usize,
+}
+
+impl ContactPrior {
+    /// Detects the contacts of a sequence (`ankles`: see [`FootContacts::detect`]) on
+    /// `model`'s feet; the next frame is the sequence's first.
+    ///
+    /// # Errors
+    /// [`FootContacts::detect`]'s; [`Model::sole_levels`]'s (a model without a rig).
+    pub fn new(
+        model: &Model,
+        ankles: &[(f64, [V3; 2])],
+        options: &ContactOptions,
+    ) -> Result<ContactPrior> {
+        Ok(ContactPrior {
+            contacts: FootContacts::detect(ankles, options)?,
+            soles: model.sole_levels()?,
+            points: model.foot_points()?,
+            anchors: FootAnchors::default(),
+            next: 0,
+        })
+    }
+
+    /// [`ContactPrior::new`] from the frames' targets, frame `i` at `i / frame_rate` s, the
+    /// ankles their `l_ankle` and `r_ankle` keypoints.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the first frame (0-based) without both ankle keypoints, or a
+    /// frame rate that is not positive; then as [`ContactPrior::new`].
+    pub fn from_targets(
+        model: &Model,
+        frames: &[crate::Targets],
+        frame_rate: f64,
+        options: &ContactOptions,
+    ) -> Result<ContactPrior> {
+        if !(frame_rate.is_finite() && frame_rate > 0.0) {
+            return Err(Error::Invalid(format!(
+                "foot contacts: the frame rate must be positive (got {frame_rate} Hz)"
+            )));
+        }
+        let index =
+            |n: &str| panoman_human::keypoints::keypoint_index(n).expect("TC-127 has both ankles");
+        let (l, r) = (index("l_ankle"), index("r_ankle"));
+        let ankles = frames
+            .iter()
+            .enumerate()
+            .map(|(i, t)| {
+                let at = |k: usize, name: &str| {
+                    t.keypoints.points.get(&k).copied().ok_or_else(|| {
+                        Error::Invalid(format!(
+                            "foot contacts: frame {i} has no {name} keypoint (both ankles are \
+                             needed in every frame)"
+                        ))
+                    })
+                };
+                Ok((
+                    i as f64 / frame_rate,
+                    [at(l, "l_ankle")?, at(r, "r_ankle")?],
+                ))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        ContactPrior::new(model, &ankles, options)
+    }
+
+    /// The targets of the next frame with its planted feet's level pairs and anchor handles
+    /// added.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] when every frame of the sequence has been fitted.
+    pub fn apply(&self, t: &crate::Targets) -> Result<crate::Targets> {
+        let Some(&w) = self.contacts.weights.get(self.next) else {
+            return Err(Error::Invalid(format!(
+                "foot contacts: the sequence has {} frames, all fitted",
+                self.contacts.weights.len()
+            )));
+        };
+        let mut t = t.clone();
+        t.levels
+            .extend(self.contacts.levels(self.next, &self.soles));
+        t.handles.extend(
+            self.anchors
+                .handles(w, &self.points, self.contacts.options.weight),
+        );
+        Ok(t)
+    }
+
+    /// After the next frame's fit (`solved`, `(V, 3)` metres): updates the anchors and moves
+    /// to the following frame.
+    pub fn advance(&mut self, solved: &[V3]) {
+        if let Some(&w) = self.contacts.weights.get(self.next) {
+            self.anchors.update(w, &self.points, solved);
+        }
+        self.next += 1;
+    }
+
+    /// Per foot the frames with contact weight ≥ ½.
+    pub fn frames_down(&self) -> [usize; 2] {
+        let w = &self.contacts.weights;
+        [0, 1].map(|s| w.iter().filter(|x| x[s] >= 0.5).count())
+    }
+}

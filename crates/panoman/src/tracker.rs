@@ -5,6 +5,7 @@ use panoman_fit::{Previous, Sequence, SequenceState, ik_config_for_noise};
 use panoman_model::model::Params;
 
 use crate::error::{Error, Result};
+use crate::feet::ContactPrior;
 use crate::fitter::{FitOutput, FitRequest, Fitter, Method};
 use crate::model::Model;
 use crate::targets::Targets;
@@ -31,6 +32,7 @@ pub struct Tracker {
     sequence: Sequence,
     lbs_state: Option<IkState>,
     frames: usize,
+    contacts: Option<ContactPrior>,
 }
 
 impl Tracker {
@@ -63,6 +65,7 @@ impl Tracker {
             sequence,
             lbs_state: None,
             frames: 0,
+            contacts: None,
         }
     }
 
@@ -79,6 +82,20 @@ impl Tracker {
     /// restore.
     pub fn set_shape(&mut self, shape: Option<panoman_human::params::ShapeParams>) {
         self.sequence.ik.initial_shape = shape;
+    }
+
+    /// Sets the foot–floor contact prior of the frames that follow ([`ContactPrior`]): each
+    /// [`Tracker::track`] adds the prior's next frame's level pairs and anchor handles to its
+    /// targets and advances it. `None` removes it. Not part of a [`Tracker::checkpoint`]: set
+    /// it again after a restore (with its anchors and next frame, e.g. from
+    /// [`Tracker::contacts`] saved beside the checkpoint).
+    pub fn set_contacts(&mut self, prior: Option<ContactPrior>) {
+        self.contacts = prior;
+    }
+
+    /// The contact prior, if any ([`Tracker::set_contacts`]).
+    pub fn contacts(&self) -> Option<&ContactPrior> {
+        self.contacts.as_ref()
     }
 
     /// Calibrates the identity's limb and trunk lengths from `frames` with this tracker's
@@ -232,11 +249,18 @@ impl Tracker {
         Ok(())
     }
 
-    /// Fits the next frame.
+    /// Fits the next frame. With a contact prior ([`Tracker::set_contacts`]) the prior's
+    /// next frame's level pairs and anchor handles join `targets`.
     ///
     /// # Errors
-    /// Invalid targets (see [`Fitter::fit`]); the sequence state is unchanged then.
+    /// Invalid targets (see [`Fitter::fit`]), a contact prior whose frames are all fitted;
+    /// the sequence state (and the prior) is unchanged then.
     pub fn track(&mut self, targets: &Targets) -> Result<FitOutput> {
+        let with_contacts = match &self.contacts {
+            Some(p) => Some(p.apply(targets)?),
+            None => None,
+        };
+        let targets = with_contacts.as_ref().unwrap_or(targets);
         let c = self.fitter.constraints(targets, &self.request)?;
         let out = match self.request.method {
             Method::Lbs => {
@@ -258,6 +282,9 @@ impl Tracker {
             }
         };
         self.frames += 1;
+        if let Some(p) = &mut self.contacts {
+            p.advance(&out.vertices);
+        }
         Ok(out)
     }
 }

@@ -3,7 +3,7 @@
 
 use anyhow::{Context, Result, anyhow};
 use clap::{Args, ValueEnum};
-use panoman::feet::{ContactOptions, FootAnchors, FootContacts};
+use panoman::feet::{ContactOptions, ContactPrior, FootAnchors};
 use panoman::{
     FitOutput, FitReport, FitRequest, Fitter, IkStart, Method, Model, Params, Targets, Tracker,
     read_handles, read_points,
@@ -509,13 +509,14 @@ fn track_sequence(
         ..Default::default()
     };
     let contacts = if a.contacts {
-        Some(SequenceContacts::new(a, model, frames, &targets)?)
+        Some(contact_prior(a, model, frames, &targets)?)
     } else {
         None
     };
     let start = if a.cold { IkStart::Cold } else { IkStart::Warm };
     let fitter = Fitter::with_assets(model, a.assets.as_deref())?;
     let mut tracker = Tracker::with_fitter(fitter, req, start);
+    tracker.set_contacts(contacts);
     let calibration = if a.calibrate_shape > 0 {
         let picked = spread_frames(targets.len(), a.calibrate_shape);
         let sel: Vec<Targets> = picked.iter().map(|&i| targets[i].clone()).collect();
@@ -540,9 +541,8 @@ fn track_sequence(
     let setup_s = t_setup.elapsed().as_secs_f64();
     std::fs::create_dir_all(out_dir).with_context(|| out_dir.display().to_string())?;
     let mut resume = ResumeState::open(a, out_dir)?;
-    let mut anchors = FootAnchors::default();
     let done = if a.resume {
-        resume.restore(&mut tracker, frames, &mut anchors)?
+        resume.restore(&mut tracker, frames)?
     } else {
         resume.reset()?;
         0
@@ -557,20 +557,9 @@ fn track_sequence(
     let mut rows: Vec<serde_json::Value> = resume.rows.clone();
     for (f, (path, t)) in frames.iter().zip(&targets).enumerate().skip(done) {
         let stem = frame_stem(path, f);
-        let with_contacts;
-        let t = match &contacts {
-            Some(c) => {
-                with_contacts = c.targets(f, t, &anchors);
-                &with_contacts
-            }
-            None => t,
-        };
         let out = tracker
             .track(t)
             .map_err(|e| anyhow!("{}", e.in_file(path)))?;
-        if let Some(c) = &contacts {
-            anchors.update(c.found.weights[f], &c.points, &out.vertices);
-        }
         write_params(
             &out_dir.join(format!("{stem}.params.json")),
             &out,
@@ -581,7 +570,7 @@ fn track_sequence(
             &TriMesh::new(out.vertices.clone(), model.faces().to_vec()),
         )?;
         let row = frame_row(&stem, &out.report);
-        resume.record(&tracker, &anchors, path, &row)?;
+        resume.record(&tracker, path, &row)?;
         rows.push(row);
         bar.inc(1);
     }
@@ -615,7 +604,11 @@ fn track_sequence(
         "not_converged_frames": totals.not_converged,
         "ik_retried": totals.retried,
         "shape_calibration": calibration,
-        "contacts": contacts.as_ref().map(SequenceContacts::summary),
+        "contacts": tracker.contacts().map(|p| json!({
+            "floor_ankle_height_m": p.contacts.floor,
+            "frames_down": p.frames_down(),
+            "weights": p.contacts.weights,
+        })),
         "per_frame": rows,
     });
     write_json(&out_dir.join("summary.json"), &summary)?;
@@ -756,81 +749,34 @@ fn fnv1a(bytes: &[u8]) -> String {
     format!("{h:016x}")
 }
 
-/// The foot–floor contact prior of one sequence (`--contacts`): contacts detected from the
-/// frames' ankle keypoints, the model's sole level pairs and foot points.
-struct SequenceContacts {
-    found: FootContacts,
-    soles: [[panoman::LevelPair; 2]; 2],
-    points: [u32; 6],
-}
-
-impl SequenceContacts {
-    /// Detects the contacts of `targets` (frame `i` at `i / fps` s); every frame needs both
-    /// ankle keypoints.
-    fn new(
-        a: &TrackArgs,
-        model: &Model,
-        frames: &[PathBuf],
-        targets: &[Targets],
-    ) -> Result<SequenceContacts> {
-        let fps = a.fps.unwrap_or(0.0);
-        if !(fps.is_finite() && fps > 0.0) {
-            return Err(anyhow!("--fps must be a positive frame rate (got {fps})"));
+/// The foot–floor contact prior of one sequence (`--contacts`), detected from its frames'
+/// ankle keypoints (frame `i` at `i / fps` s); a frame without both ankles is named.
+fn contact_prior(
+    a: &TrackArgs,
+    model: &Model,
+    frames: &[PathBuf],
+    targets: &[Targets],
+) -> Result<ContactPrior> {
+    let fps = a.fps.unwrap_or(0.0);
+    let idx = |n: &str| panoman_human::keypoints::keypoint_index(n).expect("TC-127 name");
+    for (t, p) in targets.iter().zip(frames) {
+        for name in ["l_ankle", "r_ankle"] {
+            if !t.keypoints.points.contains_key(&idx(name)) {
+                return Err(anyhow!(
+                    "{}: no {name} keypoint; --contacts needs both ankles in every frame",
+                    p.display()
+                ));
+            }
         }
-        let idx = |n: &str| panoman_human::keypoints::keypoint_index(n).expect("TC-127 name");
-        let (la, ra) = (idx("l_ankle"), idx("r_ankle"));
-        let ankles = targets
-            .iter()
-            .zip(frames)
-            .enumerate()
-            .map(|(i, (t, p))| {
-                let at = |k: usize, name: &str| {
-                    t.keypoints.points.get(&k).copied().ok_or_else(|| {
-                        anyhow!(
-                            "{}: no {name} keypoint; --contacts needs both ankles in every frame",
-                            p.display()
-                        )
-                    })
-                };
-                Ok((i as f64 / fps, [at(la, "l_ankle")?, at(ra, "r_ankle")?]))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let options = ContactOptions {
-            up: a.up.vector(),
-            ..ContactOptions::default()
-        };
-        Ok(SequenceContacts {
-            found: FootContacts::detect(&ankles, &options).map_err(|e| {
-                let dir = frames[0].parent().unwrap_or(Path::new("."));
-                anyhow!("{}: {e}", dir.display())
-            })?,
-            soles: model.sole_levels()?,
-            points: model.foot_points()?,
-        })
     }
-
-    /// Frame `f`'s targets with the sole level pairs and the anchors of its planted feet.
-    fn targets(&self, f: usize, t: &Targets, anchors: &FootAnchors) -> Targets {
-        let mut t = t.clone();
-        t.levels.extend(self.found.levels(f, &self.soles));
-        t.handles.extend(anchors.handles(
-            self.found.weights[f],
-            &self.points,
-            self.found.options.weight,
-        ));
-        t
-    }
-
-    /// summary.json's `contacts`: floor levels, frames down per foot, per-frame weights.
-    fn summary(&self) -> serde_json::Value {
-        let w = &self.found.weights;
-        let down = |s: usize| w.iter().filter(|x| x[s] >= 0.5).count();
-        json!({
-            "floor_ankle_height_m": self.found.floor,
-            "frames_down": [down(0), down(1)],
-            "weights": w,
-        })
-    }
+    let options = ContactOptions {
+        up: a.up.vector(),
+        ..ContactOptions::default()
+    };
+    ContactPrior::from_targets(model, targets, fps, &options).map_err(|e| {
+        let dir = frames[0].parent().unwrap_or(Path::new("."));
+        anyhow!("{}: {e}", dir.display())
+    })
 }
 
 /// The foot anchors as checkpoint JSON: per foot `null` or the 9 coordinates' f64 bits (exact).
@@ -960,12 +906,7 @@ impl ResumeState {
 
     /// `--resume`: restores the tracker from the checkpoint; returns the number of frames
     /// already complete (0 without a checkpoint, after [`ResumeState::reset`]).
-    fn restore(
-        &mut self,
-        tracker: &mut Tracker,
-        frames: &[PathBuf],
-        anchors: &mut FootAnchors,
-    ) -> Result<usize> {
+    fn restore(&mut self, tracker: &mut Tracker, frames: &[PathBuf]) -> Result<usize> {
         let sp = self.state_path();
         let bytes = match std::fs::read(&sp) {
             Ok(b) => b,
@@ -1040,11 +981,18 @@ impl ResumeState {
         if rows.len() != done {
             return Err(bad("rows.jsonl has fewer frames than the checkpoint"));
         }
-        *anchors = anchors_from_json(&header["anchors"])
+        let anchors = anchors_from_json(&header["anchors"])
             .ok_or_else(|| bad("unreadable foot anchors in the checkpoint header"))?;
         tracker
             .restore(&bytes[16 + hlen..])
             .map_err(|e| bad(&e.to_string()))?;
+        // The contact prior is not in the tracker's checkpoint: its anchors are in the header.
+        if let Some(p) = tracker.contacts() {
+            let mut p = p.clone();
+            p.anchors = anchors;
+            p.next = done;
+            tracker.set_contacts(Some(p));
+        }
         // Lines after the checkpoint (a frame killed before its checkpoint) are dropped.
         crate::util::write_atomic(&self.rows_path(), kept)?;
         self.rows = rows;
@@ -1060,13 +1008,7 @@ impl ResumeState {
     }
 
     /// Records a frame whose outputs are written: appends its row, then checkpoints.
-    fn record(
-        &mut self,
-        tracker: &Tracker,
-        anchors: &FootAnchors,
-        path: &Path,
-        row: &serde_json::Value,
-    ) -> Result<()> {
+    fn record(&mut self, tracker: &Tracker, path: &Path, row: &serde_json::Value) -> Result<()> {
         use std::io::Write;
         let input = std::fs::read(path).with_context(|| path.display().to_string())?;
         let line = json!({"frame": row["frame"], "input": fnv1a(&input), "row": row});
@@ -1080,7 +1022,7 @@ impl ResumeState {
         .with_context(|| rp.display().to_string())?;
         self.rows.push(row.clone());
         let header = serde_json::to_vec(&json!({"frames_done": self.rows.len(), "key": self.key,
-            "anchors": anchors_to_json(anchors)}))?;
+            "anchors": tracker.contacts().map(|p| anchors_to_json(&p.anchors))}))?;
         let mut bytes = RESUME_MAGIC.to_vec();
         bytes.extend_from_slice(&(header.len() as u64).to_le_bytes());
         bytes.extend_from_slice(&header);
