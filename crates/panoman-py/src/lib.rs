@@ -1175,6 +1175,54 @@ impl PyTracker {
         Ok(d)
     }
 
+    /// Sets the foot–floor contact prior for the frames that follow (`panoman::feet`): one
+    /// keypoint set per frame of the coming sequence (as `track`'s `keypoints`, both ankles
+    /// in each), its frame rate `fps` (Hz) and the world `up` direction (default +Z). Each
+    /// `track` then holds the soles of planted feet level and their heels and toes where they
+    /// landed. `keypoints=None` removes it. Returns `{"frames_down": [left, right],
+    /// "floor_ankle_height_m": [left, right], "weights": [[left, right], ...]}`.
+    #[pyo3(signature = (keypoints, fps=30.0, *, up=None))]
+    fn set_contacts<'py>(
+        &self,
+        py: Python<'py>,
+        keypoints: Option<&Bound<'py, PyAny>>,
+        fps: f64,
+        up: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(keypoints) = keypoints else {
+            lock(&self.inner).set_contacts(None);
+            return Ok(None);
+        };
+        let frames = keypoints
+            .try_iter()
+            .map_err(|_| invalid(py, "keypoints: expected a sequence of keypoint sets"))?
+            .map(|k| targets(py, Some(&k?), None, None, None, None))
+            .collect::<PyResult<Vec<_>>>()?;
+        let mut options = panoman::feet::ContactOptions::default();
+        if let Some(u) = up {
+            options.up = v3_of(py, u, "up")?;
+        }
+        let tr = &self.inner;
+        let prior = run(py, || {
+            let t = lock(tr);
+            panoman::feet::ContactPrior::from_targets(t.fitter().model(), &frames, fps, &options)
+        })?;
+        let d = PyDict::new(py);
+        d.set_item("frames_down", prior.frames_down().to_vec())?;
+        d.set_item("floor_ankle_height_m", prior.contacts.floor.to_vec())?;
+        d.set_item(
+            "weights",
+            prior
+                .contacts
+                .weights
+                .iter()
+                .map(|w| w.to_vec())
+                .collect::<Vec<_>>(),
+        )?;
+        lock(tr).set_contacts(Some(prior));
+        Ok(Some(d))
+    }
+
     /// Frames fitted so far.
     #[getter]
     fn frames(&self) -> usize {

@@ -133,3 +133,31 @@ def test_motion_data(tmp_path, fitter, target):
     assert body_mm(fit) < 10.0
     with pytest.raises(panoman.InvalidError, match="LBS"):
         fitter.fit(keypoints=kp, motion=motion, method="lbs")
+
+
+def test_tracker_contacts(model, target):
+    mesh, kp = target
+    tracker = panoman.Tracker(model, "lbs")
+    frames = [kp, kp, kp]
+    info = tracker.set_contacts(frames, fps=30.0)
+    # A person standing still: both feet planted in every frame.
+    assert info["frames_down"] == [3, 3]
+    assert len(info["weights"]) == 3 and all(w == [1.0, 1.0] for w in info["weights"])
+    for _ in range(3):
+        assert body_mm(tracker.track(kp)) < 10.0
+    # The prior covers three frames: a fourth is refused, the sequence unchanged.
+    with pytest.raises(panoman.InvalidError, match="all fitted"):
+        tracker.track(kp)
+    assert tracker.frames == 3
+    assert tracker.set_contacts(None) is None
+    tracker.track(kp)
+    assert tracker.frames == 4
+    # Bad input: a zero up direction, a frame without its ankles, no frame rate.
+    with pytest.raises(panoman.InvalidError, match="up direction"):
+        tracker.set_contacts(frames, up=(0.0, 0.0, 0.0))
+    names = panoman.keypoint_names()
+    no_ankle = {n: kp[i] for i, n in enumerate(names) if n != "l_ankle"}
+    with pytest.raises(panoman.InvalidError, match="frame 1 has no l_ankle"):
+        tracker.set_contacts([kp, no_ankle])
+    with pytest.raises(panoman.InvalidError, match="frame rate"):
+        tracker.set_contacts(frames, fps=0.0)

@@ -218,6 +218,20 @@ class Tracker:
         frames that follow. ``handles``: one handle set per frame (e.g. foot points).
         Returns ``{"knobs": {name: value}, "before_mm", "after_mm", "seconds"}`` (mean
         keypoint distance over those frames before and after, mm)."""
+    def set_contacts(
+        self,
+        keypoints: Optional[Sequence[Keypoints]],
+        fps: float = 30.0,
+        *,
+        up: Optional[ArrayLike] = None,
+    ) -> Optional[Dict[str, Any]]:
+        """Sets the foot–floor contact prior for the frames that follow: one keypoint set per
+        frame of the coming sequence (both ankles in each), its frame rate ``fps`` (Hz) and
+        the world ``up`` direction (default +Z). A foot whose ankle is within 2–5 cm of its
+        lowest height and slower than 0.25–0.6 m/s counts as planted: ``track`` then holds its
+        sole level and its heel and toes where they landed (TC-127 has no foot points).
+        ``None`` removes it. Returns ``{"frames_down": [left, right],
+        "floor_ankle_height_m": [left, right], "weights": [[left, right], ...]}``."""
     @property
     def frames(self) -> int:
         """Frames fitted so far."""
