@@ -712,23 +712,11 @@ fn straight_limbs_are_reached_cold_and_kept_warm() {
     );
 }
 
-/// Vertex handles reach the IK (`ik_fit`'s handle pass): a foot flexed 30° down and turned
-/// in is invisible to TC-127 (its body stops at the ankles), so the keypoints alone leave the
-/// foot near rest; three vertices of each foot as handles (big toe, small toe, heel; their
-/// true positions) recover its flexion and the mesh, cold and warm (the turn-in is split
-/// between the foot's axes differently but lands the vertices: 0.26 mm measured).
-#[test]
-fn foot_handles_place_the_feet() {
-    use panoman_fit::fit::VertexHandle;
-    use panoman_human::keypoints::KeypointsFile;
-    let s = solver();
-    let mut truth = rest_pose();
-    truth.pose.euler_deg[bone("foot.L")] = [30.0, 0.0, 10.0];
-    truth.pose.euler_deg[bone("foot.R")] = [25.0, 0.0, -10.0];
-    let mesh = small_mesh(&truth);
+/// The big toe, small toe (most forward medial / lateral) and heel (rearmost) vertex of each
+/// sole (left, then right) of the small template's rest mesh, as `panoman::foot_points`
+/// picks them.
+fn rest_foot_points() -> Vec<usize> {
     let rest = small_mesh(&GeneratorParams::default());
-    // The big toe, small toe (most forward medial / lateral) and heel (rearmost) vertex of
-    // each sole at rest, as `panoman_mocap::track::foot_points` picks them.
     let low = rest.iter().map(|v| v[2]).fold(f64::INFINITY, f64::min);
     let mut feet = Vec::new();
     for side in [1.0, -1.0] {
@@ -747,6 +735,24 @@ fn foot_handles_place_the_feet() {
         feet.push(by(&|i| rest[i][0].abs() >= mid, &|i| rest[i][1]));
         feet.push(by(&|_| true, &|i| -rest[i][1]));
     }
+    feet
+}
+
+/// Vertex handles reach the IK (`ik_fit`'s handle pass): a foot flexed 30° down and turned
+/// in is invisible to TC-127 (its body stops at the ankles), so the keypoints alone leave the
+/// foot near rest; three vertices of each foot as handles (big toe, small toe, heel; their
+/// true positions) recover its flexion and the mesh, cold and warm (the turn-in is split
+/// between the foot's axes differently but lands the vertices: 0.26 mm measured).
+#[test]
+fn foot_handles_place_the_feet() {
+    use panoman_fit::fit::VertexHandle;
+    use panoman_human::keypoints::KeypointsFile;
+    let s = solver();
+    let mut truth = rest_pose();
+    truth.pose.euler_deg[bone("foot.L")] = [30.0, 0.0, 10.0];
+    truth.pose.euler_deg[bone("foot.R")] = [25.0, 0.0, -10.0];
+    let mesh = small_mesh(&truth);
+    let feet = rest_foot_points();
     let keypoints = KeypointsFile::from_all(&fx().small_set.evaluate(&mesh));
     let only = panoman_fit::Constraints {
         keypoints: keypoints.clone(),
@@ -813,27 +819,12 @@ fn level_pairs_set_the_foot_flexion() {
     truth.pose.euler_deg[bone("foot.L")] = [30.0, 0.0, 0.0];
     truth.pose.euler_deg[bone("foot.R")] = [-20.0, 0.0, 0.0];
     let mesh = small_mesh(&truth);
-    let rest = small_mesh(&GeneratorParams::default());
-    // Heel (rearmost sole vertex) and the most forward sole vertices, medial and lateral.
-    let low = rest.iter().map(|v| v[2]).fold(f64::INFINITY, f64::min);
+    // Per foot: heel above big toe, heel above small toe.
+    let feet = rest_foot_points();
     let mut levels = Vec::new();
-    for side in [1.0, -1.0] {
-        let sole: Vec<usize> = (0..rest.len())
-            .filter(|&i| rest[i][0] * side > 0.0 && rest[i][2] < low + 0.03)
-            .collect();
-        let mid = sole.iter().map(|&i| rest[i][0].abs()).sum::<f64>() / sole.len() as f64;
-        let by = |keep: &dyn Fn(usize) -> bool, k: &dyn Fn(usize) -> f64| {
-            *sole
-                .iter()
-                .filter(|&&i| keep(i))
-                .min_by(|&&a, &&b| k(a).total_cmp(&k(b)))
-                .unwrap()
-        };
-        let heel = by(&|_| true, &|i| -rest[i][1]);
-        for toe in [
-            by(&|i| rest[i][0].abs() < mid, &|i| rest[i][1]),
-            by(&|i| rest[i][0].abs() >= mid, &|i| rest[i][1]),
-        ] {
+    for foot in feet.chunks(3) {
+        let heel = foot[2];
+        for toe in [foot[0], foot[1]] {
             levels.push(LevelPair {
                 a: heel as u32,
                 b: toe as u32,
