@@ -14,7 +14,9 @@
 //! COCO-WholeBody detectors add to a body layout) — at their positions on the generated mesh,
 //! as vertex handles ([`panoman::Targets::handles`]: the IK fits them as point targets, the
 //! shell fit as handles). TC-127 stops at the ankles, so without them a foot's flexion is not
-//! observed (crates/panoman-mocap/README.md).
+//! observed (crates/panoman-mocap/README.md). With `contacts` ([`TrackOptions::contacts`]) the
+//! trackers get the foot–floor contact prior instead ([`panoman::feet::ContactPrior`]),
+//! detected from the frames' own ankle keypoints: no observation beyond TC-127.
 //!
 //! Units: metres in the API (meshes, keypoints), millimetres and milliseconds in the report.
 

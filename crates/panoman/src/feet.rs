@@ -4,6 +4,12 @@
 //! ([`crate::Targets::handles`]), they place the feet: the IK fits handles as point targets
 //! (`docs/formats.md` §6.1), the shell fit as handles.
 //!
+//! Without foot points, the foot–floor contact prior ([`ContactPrior`]) constrains the feet of
+//! a tracked sequence from its ankle keypoints alone: feet detected as planted
+//! ([`FootContacts`]) get their soles held level ([`LevelPair`]s of [`Model::sole_levels`])
+//! and their heels and toes held where they landed ([`FootAnchors`]);
+//! docs/design/rig-and-ik.md §4.9.
+//!
 //! Units: metres.
 
 use panoman_fit::fit::{LevelPair, VertexHandle};
