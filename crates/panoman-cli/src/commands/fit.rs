@@ -28,13 +28,13 @@ pub enum Baseline {
 pub enum UpAxis {
     /// +X.
     X,
-    /// +Y (e.g. OpenPose's 3D output in a Y-up world).
+    /// +Y (Y-up worlds, e.g. glTF scenes).
     Y,
     /// +Z (panoman's own frame, Vicon lab frames).
     Z,
     /// −X.
     NegX,
-    /// −Y (CMU Panoptic, OpenCV camera frames).
+    /// −Y (CMU Panoptic's world, whose y points down).
     NegY,
     /// −Z.
     NegZ,
@@ -177,7 +177,7 @@ pub struct TrackArgs {
     /// whose ankle keypoint is within 2–5 cm of its lowest height in the sequence and slower
     /// than 0.25–0.6 m/s counts as planted; its sole is then held level (heel and toes at
     /// their rest heights) and its heel and toes stay where they landed. Needs --fps;
-    /// summary.json gets `contacts` (docs/design/mocap.md).
+    /// summary.json gets `contacts` (docs/design/rig-and-ik.md §4.9).
     #[arg(long, requires = "fps")]
     pub contacts: bool,
     /// Frame rate of the keypoint files, Hz (the ankle speeds of --contacts).
