@@ -329,6 +329,17 @@ impl FootAnchors {
     }
 }
 
+/// The `[l_ankle, r_ankle]` keypoints of a frame's targets (metres), the contact detector's
+/// input; `Err` names the first one missing.
+pub fn ankles(t: &crate::Targets) -> std::result::Result<[V3; 2], &'static str> {
+    let at = |name: &'static str| {
+        panoman_human::keypoints::keypoint_index(name)
+            .and_then(|k| t.keypoints.points.get(&k).copied())
+            .ok_or(name)
+    };
+    Ok([at("l_ankle")?, at("r_ankle")?])
+}
+
 /// The foot–floor contact prior of one sequence, applied frame by frame: its
 /// [`FootContacts`], the model's sole level pairs and foot points, the [`FootAnchors`] of the
 /// planted feet, and the index of the next frame. Give it to a tracker
@@ -385,25 +396,17 @@ impl ContactPrior {
                 "foot contacts: the frame rate must be positive (got {frame_rate} Hz)"
             )));
         }
-        let index =
-            |n: &str| panoman_human::keypoints::keypoint_index(n).expect("TC-127 has both ankles");
-        let (l, r) = (index("l_ankle"), index("r_ankle"));
         let ankles = frames
             .iter()
             .enumerate()
             .map(|(i, t)| {
-                let at = |k: usize, name: &str| {
-                    t.keypoints.points.get(&k).copied().ok_or_else(|| {
-                        Error::Invalid(format!(
-                            "foot contacts: frame {i} has no {name} keypoint (both ankles are \
-                             needed in every frame)"
-                        ))
-                    })
-                };
-                Ok((
-                    i as f64 / frame_rate,
-                    [at(l, "l_ankle")?, at(r, "r_ankle")?],
-                ))
+                let a = ankles(t).map_err(|name| {
+                    Error::Invalid(format!(
+                        "foot contacts: frame {i} has no {name} keypoint (both ankles are \
+                         needed in every frame)"
+                    ))
+                })?;
+                Ok((i as f64 / frame_rate, a))
             })
             .collect::<Result<Vec<_>>>()?;
         ContactPrior::new(model, &ankles, options)

@@ -758,16 +758,13 @@ fn contact_prior(
     targets: &[Targets],
 ) -> Result<ContactPrior> {
     let fps = a.fps.unwrap_or(0.0);
-    let idx = |n: &str| panoman_human::keypoints::keypoint_index(n).expect("TC-127 name");
     for (t, p) in targets.iter().zip(frames) {
-        for name in ["l_ankle", "r_ankle"] {
-            if !t.keypoints.points.contains_key(&idx(name)) {
-                return Err(anyhow!(
-                    "{}: no {name} keypoint; --contacts needs both ankles in every frame",
-                    p.display()
-                ));
-            }
-        }
+        panoman::feet::ankles(t).map_err(|name| {
+            anyhow!(
+                "{}: no {name} keypoint; --contacts needs both ankles in every frame",
+                p.display()
+            )
+        })?;
     }
     let options = ContactOptions {
         up: a.up.vector(),

@@ -444,7 +444,7 @@ fn run_track(
         contacts: a
             .contacts
             .then(panoman_mocap::track::ContactOptions::default),
-        frame_rate: bvh.rate_hz(),
+        ..Default::default()
     };
     if a.calibrate_shape > 0 {
         eprintln!(
