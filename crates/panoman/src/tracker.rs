@@ -74,13 +74,15 @@ impl Tracker {
         self.frames
     }
 
-    /// Fixes the identity's non-fitted shape values for the frames that follow: local changes
-    /// (e.g. the limb lengths of [`Fitter::calibrate_shape`]) and the phenotype values the IK
-    /// does not fit are held, the six IK phenotype values start from `shape`'s and stay
-    /// fitted ([`IkConfig::initial_shape`]). `None`: the default shape (as a new tracker).
-    /// Both methods use it. Not part of a [`Tracker::checkpoint`]: set it again after a
-    /// restore.
+    /// Holds the identity for the frames that follow, as MoSh holds a calibrated shape: local
+    /// changes (e.g. the limb lengths of [`Fitter::calibrate_shape`]) and all phenotype values,
+    /// the six IK ones included, are `shape`'s and no longer fitted per frame
+    /// ([`IkConfig::initial_shape`], `fit_phenotype` off; CMU `01_01`: 11.20 → 10.64 mm,
+    /// docs/design/rig-and-ik.md §4.10). `None`: the default shape with the six IK phenotype
+    /// values fitted per frame (as a new tracker). Both methods use it. Not part of a
+    /// [`Tracker::checkpoint`]: set it again after a restore.
     pub fn set_shape(&mut self, shape: Option<panoman_human::params::ShapeParams>) {
+        self.sequence.ik.fit_phenotype = shape.is_none();
         self.sequence.ik.initial_shape = shape;
     }
 
