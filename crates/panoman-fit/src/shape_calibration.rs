@@ -21,9 +21,8 @@
 //!    2–3 repeat ([`ShapeCalibrationOptions::rounds`]).
 //!
 //! The result is a template shape ([`ShapeCalibration::shape`]: the knobs, and the frames'
-//! mean phenotype as the IK's starting values) for the sequence's IK
-//! ([`crate::ik::IkConfig::initial_shape`]), which keeps the local changes fixed and refits
-//! the phenotype.
+//! mean phenotype) for the sequence's IK ([`crate::ik::IkConfig::initial_shape`]); the
+//! `panoman` tracker holds it whole, the phenotype included (`fit_phenotype` off).
 
 use std::time::Instant;
 
