@@ -1120,7 +1120,7 @@ impl PyTracker {
 
     /// Calibrates the identity's limb and trunk lengths from several frames (one keypoint
     /// set each, as `track`'s `keypoints`; `handles`: one handle set per frame or None) and
-    /// holds them for the frames that follow. Returns `{"knobs": {name: value},
+    /// holds them, with the frames' mean phenotype, for the frames that follow. Returns `{"knobs": {name: value},
     /// "before_mm", "after_mm", "seconds"}`.
     #[pyo3(signature = (keypoints, handles=None))]
     fn calibrate_shape<'py>(

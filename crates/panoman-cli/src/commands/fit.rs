@@ -169,8 +169,9 @@ pub struct TrackArgs {
     pub strict: bool,
     /// First calibrate the identity's limb and trunk lengths (MoSh's shape stage) from N
     /// frames spread over each sequence: their segment lengths (upper arm, forearm, thigh,
-    /// shank, shoulder and hip width, torso) fix the rig's length controls for every frame;
-    /// summary.json gets `shape_calibration`. 0: the IK's six phenotype values only.
+    /// shank, shoulder and hip width, torso) fix the rig's length controls, and the frames' mean
+    /// phenotype is held, for every frame; summary.json gets `shape_calibration`. 0: the IK's
+    /// six phenotype values fitted per frame.
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub calibrate_shape: usize,
     /// Foot–floor contact prior (for keypoints without foot points, e.g. TC-127): a foot
