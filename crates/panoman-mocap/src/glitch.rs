@@ -14,6 +14,15 @@
 //! marker) has a larger MAD, so its usual motion is not flagged. The cap keeps a marker that
 //! is wrong for a large part of the capture (whose MAD the glitch itself inflates) flagged.
 //! Each median needs more than half of the samples right.
+//!
+//! **Runs (hysteresis).** A glitch that builds up or fades — a marker that slides on the skin
+//! or a label that drifts back over hundreds of frames — crosses the threshold only at its
+//! worst; its tails score between half the threshold and the threshold and would pass as
+//! observations (Thomas' `RANK`: 60 mm from its calibrated place while its score is 2–4 cm).
+//! As in hysteresis thresholding (Canny's edge linking), a flagged run is extended forwards
+//! and backwards through the frames whose score stays above a second, lower threshold
+//! (`low_m`); frames where the marker is missing or cannot be judged continue the run. A
+//! score above `low_m` that no frame above the threshold joins is not flagged.
 use crate::markers::MarkerSequence;
 
 /// Rigid neighbours per marker and frame.
@@ -93,12 +102,17 @@ pub fn rigid_neighbours(seq: &MarkerSequence) -> Vec<Vec<(usize, f64, f64)>> {
 }
 
 /// Glitch flags of every observation, frame-major like [`MarkerSequence::positions`]
-/// (`false` for missing ones); `threshold_m` as in the module docs.
-pub fn find_glitches(seq: &MarkerSequence, threshold_m: f64) -> Vec<bool> {
+/// (`false` for missing ones): the observations whose score (module docs) exceeds
+/// `threshold_m`, each such run extended through the neighbouring frames whose score exceeds
+/// `low_m` (metres; `low_m ≥ threshold_m` turns the extension off).
+pub fn find_glitches(seq: &MarkerSequence, threshold_m: f64, low_m: f64) -> Vec<bool> {
     let nm = seq.n_markers();
+    let nf = seq.n_frames();
     let nb = rigid_neighbours(seq);
-    let mut flags = vec![false; seq.positions.len()];
-    for f in 0..seq.n_frames() {
+    // Score per observation; NaN where the marker is missing or fewer than two of its
+    // neighbours are observed.
+    let mut score = vec![f64::NAN; seq.positions.len()];
+    for f in 0..nf {
         let x = seq.frame(f);
         for i in (0..nm).filter(|&i| observed(&x[i])) {
             let mut dev: Vec<f64> = nb[i]
@@ -107,8 +121,29 @@ pub fn find_glitches(seq: &MarkerSequence, threshold_m: f64) -> Vec<bool> {
                 .take(NEIGHBOURS)
                 .map(|&(j, m, mad)| (dist(&x[i], &x[j]) - m).abs() - (3.0 * mad).min(MAD_CAP_M))
                 .collect();
-            if dev.len() >= 2 && median(&mut dev) > threshold_m {
-                flags[f * nm + i] = true;
+            if dev.len() >= 2 {
+                score[f * nm + i] = median(&mut dev);
+            }
+        }
+    }
+    let mut flags: Vec<bool> = score.iter().map(|&s| s > threshold_m).collect();
+    let low = low_m.min(threshold_m);
+    for i in 0..nm {
+        // Forwards, then backwards: a run goes on while the score stays above `low`.
+        let forwards: Vec<usize> = (0..nf).collect();
+        for order in [forwards.clone(), forwards.into_iter().rev().collect()] {
+            let mut on = false;
+            for f in order {
+                let k = f * nm + i;
+                if flags[k] {
+                    on = true;
+                } else if score[k].is_nan() {
+                    // Missing or not judged: the run carries over it.
+                } else if on && score[k] > low {
+                    flags[k] = true;
+                } else {
+                    on = false;
+                }
             }
         }
     }
@@ -117,9 +152,9 @@ pub fn find_glitches(seq: &MarkerSequence, threshold_m: f64) -> Vec<bool> {
 
 /// Marks the glitches of `seq` (see [`find_glitches`]) as missing; returns the count per
 /// marker.
-pub fn drop_glitches(seq: &mut MarkerSequence, threshold_m: f64) -> Vec<usize> {
+pub fn drop_glitches(seq: &mut MarkerSequence, threshold_m: f64, low_m: f64) -> Vec<usize> {
     let nm = seq.n_markers();
-    let flags = find_glitches(seq, threshold_m);
+    let flags = find_glitches(seq, threshold_m, low_m);
     let mut count = vec![0; nm];
     for (k, _) in flags.iter().enumerate().filter(|(_, g)| **g) {
         seq.positions[k] = [f64::NAN; 3];

@@ -112,6 +112,10 @@ pub struct SolveOptions {
     /// Threshold of [`crate::glitch::find_glitches`] (m): [`crate::solve_run::solve_capture`]
     /// treats the glitches as missing (0: keeps every observation). Default 0.04.
     pub glitch_m: f64,
+    /// Lower threshold of [`crate::glitch::find_glitches`] (m): a glitch run goes on through
+    /// the frames whose score stays above it (hysteresis; `≥ glitch_m`: off). Default 0.02,
+    /// half of `glitch_m`.
+    pub glitch_low_m: f64,
     /// PanoMan's shell-fit options of a warm-started tracking frame (the first frame uses
     /// `FitOptions::default()`). Default [`panoman_fit::fit::warm_fit_options`].
     pub warm_fit: FitOptions,
@@ -137,6 +141,7 @@ impl Default for SolveOptions {
             held_out_recalibrate: false,
             placement_prior_weight: 1.0,
             glitch_m: 0.04,
+            glitch_low_m: 0.02,
             warm_fit: panoman_fit::fit::warm_fit_options(),
         }
     }

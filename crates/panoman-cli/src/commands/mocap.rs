@@ -106,6 +106,11 @@ pub struct SolveArgs {
     /// more are treated as missing; 0 keeps every observation; default: `SolveOptions`).
     #[arg(long)]
     pub glitch_m: Option<f64>,
+    /// Lower capture-glitch threshold in metres: a glitch run goes on while the marker stays
+    /// this far from its rigid neighbours (hysteresis; default: `SolveOptions`, 0.02; a value
+    /// at or above the threshold turns it off).
+    #[arg(long)]
+    pub glitch_low_m: Option<f64>,
     /// Weight λ_T (m²) of the tracking's temporal prior on the rig's bone angles (toward the
     /// previous frame's; default: `SolveOptions`, 3e-4; 0: none): less jitter, a little lag.
     #[arg(long)]
@@ -246,6 +251,7 @@ fn run_solve(a: SolveArgs) -> Result<()> {
             calibration_frames: a.calibration_frames.unwrap_or(d.calibration_frames).max(1),
             calibration_rounds: a.calibration_rounds.unwrap_or(d.calibration_rounds).max(1),
             glitch_m: a.glitch_m.unwrap_or(d.glitch_m).max(0.0),
+            glitch_low_m: a.glitch_low_m.unwrap_or(d.glitch_low_m).max(0.0),
             temporal_prior: a.temporal_prior.unwrap_or(d.temporal_prior),
             patch_sigma_m: a.patch_sigma.unwrap_or(d.patch_sigma_m),
             held_out_recalibrate: a.held_out_recalibrate,
