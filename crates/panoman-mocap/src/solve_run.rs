@@ -199,11 +199,8 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
     let t_setup = Instant::now();
     let mut seq = load_capture(&req.markers, req.up)?;
     let glitches: BTreeMap<String, usize> = if req.options.glitch_m > 0.0 {
-        let n = crate::glitch::drop_glitches(
-            &mut seq,
-            req.options.glitch_m,
-            req.options.glitch_low_m,
-        );
+        let n =
+            crate::glitch::drop_glitches(&mut seq, req.options.glitch_m, req.options.glitch_low_m);
         seq.names
             .iter()
             .zip(n)

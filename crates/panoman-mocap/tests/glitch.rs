@@ -115,13 +115,27 @@ fn a_glitch_run_goes_on_while_the_marker_stays_off() {
         (0..seq.n_frames()).filter(|&f| flags[f * nm + 5]).collect()
     };
     let (a, b) = (flagged(&single), flagged(&runs));
-    assert!(!a.is_empty() && a.iter().all(|f| b.contains(f)), "{a:?} {b:?}");
-    assert!(b[0] < a[0] && b[b.len() - 1] > a[a.len() - 1], "{a:?} {b:?}");
+    assert!(
+        !a.is_empty() && a.iter().all(|f| b.contains(f)),
+        "{a:?} {b:?}"
+    );
+    assert!(
+        b[0] < a[0] && b[b.len() - 1] > a[a.len() - 1],
+        "{a:?} {b:?}"
+    );
     assert!(b[0] < missing && b[b.len() - 1] > missing, "{b:?}");
     let holes: Vec<usize> = (b[0]..=b[b.len() - 1]).filter(|f| !b.contains(f)).collect();
-    assert_eq!(holes, vec![missing], "the run is one piece but for the missing frame");
+    assert_eq!(
+        holes,
+        vec![missing],
+        "the run is one piece but for the missing frame"
+    );
     for &f in &b {
-        assert!(off(f) > 0.025, "frame {f} lifted {:.3} m is flagged", off(f));
+        assert!(
+            off(f) > 0.025,
+            "frame {f} lifted {:.3} m is flagged",
+            off(f)
+        );
     }
     // The other markers, and the excursion that never crosses the threshold, stay clean.
     assert!((170..180).all(|f| !runs[f * nm + 5]));
