@@ -256,6 +256,8 @@ fn bad_input_is_one_line() {
     for (flag, needle) in [
         ("--temporal-prior=-1", "--temporal-prior"),
         ("--patch-sigma=nan", "--patch-sigma"),
+        ("--glitch-m=-0.04", "--glitch-m"),
+        ("--glitch-low-m=nan", "--glitch-low-m"),
     ] {
         one_line_error(
             &panoman(&[

@@ -355,14 +355,16 @@ impl MarkerSolver {
     /// Builds the solver (the model must carry its LBS rig).
     ///
     /// # Errors
-    /// [`MocapError::Invalid`]: a temporal prior, patch σ or patch weight that is negative or
-    /// not finite (naming the option and its flag), no embedded rig, solver setup failures.
+    /// [`MocapError::Invalid`]: a temporal prior, patch σ, patch weight or glitch threshold
+    /// that is negative or not finite (naming the option and its flag), no embedded rig, solver setup failures.
     pub fn new(model: &panoman::Model, options: SolveOptions) -> Result<MarkerSolver> {
         let inv = |what: String| MocapError::Invalid { what };
         for (name, v) in [
             ("temporal_prior (--temporal-prior)", options.temporal_prior),
             ("patch_sigma_m (--patch-sigma)", options.patch_sigma_m),
             ("patch_weight", options.patch_weight),
+            ("glitch_m (--glitch-m)", options.glitch_m),
+            ("glitch_low_m (--glitch-low-m)", options.glitch_low_m),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(inv(format!("{name} = {v} must be finite and ≥ 0")));

@@ -198,6 +198,8 @@ pub fn initial_map(
 pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<SolveOutput> {
     let t_setup = Instant::now();
     let mut seq = load_capture(&req.markers, req.up)?;
+    // Options are checked (by the solver) before any of them is used.
+    let mut solver = MarkerSolver::new(model, req.options.clone())?;
     let glitches: BTreeMap<String, usize> = if req.options.glitch_m > 0.0 {
         let n =
             crate::glitch::drop_glitches(&mut seq, req.options.glitch_m, req.options.glitch_low_m);
@@ -210,7 +212,6 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
     } else {
         BTreeMap::new()
     };
-    let mut solver = MarkerSolver::new(model, req.options.clone())?;
     let map = initial_map(
         &solver,
         &seq.names,
