@@ -18,7 +18,8 @@
 //! **Runs (hysteresis).** A glitch that builds up or fades — a marker that slides on the skin
 //! or a label that drifts back over hundreds of frames — crosses the threshold only at its
 //! worst; its tails score between half the threshold and the threshold and would pass as
-//! observations (Thomas' `RANK`: 60 mm from its calibrated place while its score is 2–4 cm).
+//! observations (Thomas' `RANK`: its score falls from 4 cm to 1 cm while it is still about
+//! 60 mm from its calibrated place).
 //! As in hysteresis thresholding (Canny's edge linking), a flagged run is extended forwards
 //! and backwards through the frames whose score stays above a second, lower threshold
 //! (`low_m`); frames where the marker is missing or cannot be judged continue the run. A
@@ -130,11 +131,10 @@ pub fn find_glitches(seq: &MarkerSequence, threshold_m: f64, low_m: f64) -> Vec<
     let low = low_m.min(threshold_m);
     for i in 0..nm {
         // Forwards, then backwards: a run goes on while the score stays above `low`.
-        let forwards: Vec<usize> = (0..nf).collect();
-        for order in [forwards.clone(), forwards.into_iter().rev().collect()] {
+        for backwards in [false, true] {
             let mut on = false;
-            for f in order {
-                let k = f * nm + i;
+            for t in 0..nf {
+                let k = if backwards { nf - 1 - t } else { t } * nm + i;
                 if flags[k] {
                     on = true;
                 } else if score[k].is_nan() {

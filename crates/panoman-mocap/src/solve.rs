@@ -356,7 +356,8 @@ impl MarkerSolver {
     ///
     /// # Errors
     /// [`MocapError::Invalid`]: a temporal prior, patch σ, patch weight or glitch threshold
-    /// that is negative or not finite (naming the option and its flag), no embedded rig, solver setup failures.
+    /// that is negative or not finite (naming the option and its flag), no embedded rig,
+    /// solver setup failures.
     pub fn new(model: &panoman::Model, options: SolveOptions) -> Result<MarkerSolver> {
         let inv = |what: String| MocapError::Invalid { what };
         for (name, v) in [
