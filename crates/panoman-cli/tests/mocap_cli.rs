@@ -258,6 +258,7 @@ fn bad_input_is_one_line() {
         ("--patch-sigma=nan", "--patch-sigma"),
         ("--glitch-m=-0.04", "--glitch-m"),
         ("--glitch-low-m=nan", "--glitch-low-m"),
+        ("--pose-placement-ridge=-0.05", "--pose-placement-ridge"),
     ] {
         one_line_error(
             &panoman(&[

@@ -7,10 +7,14 @@
 //!   marker's surface point is moved to the mean, over the frames, of the closest surface
 //!   point to `observed − offset·n̂`, taken back to the rest mesh, shrunk toward its initial
 //!   location (one pseudo-observation) and kept within `marker_prior_m` of it; its offset
-//!   is the mean signed normal distance, shrunk toward the initial offset. PanoMan's α is
-//!   the shape-PCA projection of the calibrated rest mesh.
+//!   is the mean signed normal distance, shrunk toward the initial offset. From the second
+//!   half of the rounds on, each marker's surface point also moves with the pose
+//!   ([`PosePlacement`]: linear in the angles of the bones around it, fitted by ridge
+//!   regression on the calibration frames; `pose_placement_ridge`). PanoMan's α is the
+//!   shape-PCA projection of the calibrated rest mesh.
 //! * **Tracking** ([`MarkerSolver::track`]): every frame the markers are surface-point
-//!   targets `observed − offset·n̂` (n̂ the current normal at the marker's surface point),
+//!   targets `observed − offset·n̂` (n̂ the current normal at the marker's surface point,
+//!   the surface point placed for the IK round's starting pose),
 //!   missing ones skipped, down-weighted by Geman–McClure IRLS
 //!   (`w = (σ²/(σ² + r²))²`, σ = `robust_sigma_m`; a marker whose residual exceeds
 //!   `outlier_m` counts as an outlier). LBS: the IK, warm-started from the previous frame.
@@ -23,7 +27,8 @@
 //!   frames left out), with the full calibration (MoSh: shape and placement are calibrated
 //!   once with every marker) or, with `held_out_recalibrate`, a calibration of its own
 //!   without them; a left-out marker's error is the distance of its observation from its
-//!   surface point + offset **of the full calibration** on the solved mesh. `mean` counts
+//!   surface point + offset **of the full calibration** on the solved mesh (placed for the
+//!   solved pose, [`MarkerSolver::frame_map`]). `mean` counts
 //!   the markers that stay observable in their fold ([`MarkerSolver::observable`]),
 //!   `mean_all` every one; capture glitches ([`crate::glitch`]) are missing observations.
 use std::collections::BTreeMap;
@@ -42,7 +47,8 @@ use serde::Serialize;
 
 use crate::error::{MocapError, Result};
 use crate::marker_map::{
-    MarkerMap, RestTemplate, closest_point, surface_normal, surface_point, vertex_normals,
+    MarkerMap, RestTemplate, closest_on_triangle, closest_point, surface_normal, surface_point,
+    vertex_normals,
 };
 use crate::markers::MarkerSequence;
 
@@ -116,6 +122,12 @@ pub struct SolveOptions {
     /// the frames whose score stays above it (hysteresis; `≥ glitch_m`: off). Default 0.02,
     /// half of `glitch_m`.
     pub glitch_low_m: f64,
+    /// Ridge `λ` (rad², per frame) of the pose-dependent marker placements
+    /// ([`PosePlacement`], fitted from the second half of the calibration rounds on);
+    /// 0: each marker keeps one fixed surface point. Default 0.05. LBS, full captures
+    /// (Thomas every 2nd frame), held-out `mean` fixed → pose-dependent: nick 10.17 → 9.05
+    /// mm, Thomas 11.89 → 11.03 mm (λ 0.2: 9.39 / 11.42; docs/design/mocap.md).
+    pub pose_placement_ridge: f64,
     /// PanoMan's shell-fit options of a warm-started tracking frame (the first frame uses
     /// `FitOptions::default()`). Default [`panoman_fit::fit::warm_fit_options`].
     pub warm_fit: FitOptions,
@@ -142,6 +154,7 @@ impl Default for SolveOptions {
             placement_prior_weight: 1.0,
             glitch_m: 0.04,
             glitch_low_m: 0.02,
+            pose_placement_ridge: 0.05,
             warm_fit: panoman_fit::fit::warm_fit_options(),
         }
     }
@@ -169,6 +182,99 @@ pub struct Calibration {
     pub patches: Vec<Vec<(u32, f64)>>,
     /// Wall time (s).
     pub seconds: f64,
+    /// Per marker: its pose-dependent placement (`None`: fixed at `map`'s; all `None` or
+    /// empty when [`SolveOptions::pose_placement_ridge`] is 0).
+    pub pose_placement: Vec<Option<PosePlacement>>,
+}
+
+/// A marker's pose-dependent placement: where on the rest mesh it sits as a linear function
+/// of the angles of the bones around it,
+///
+/// `r(θ) = a + Σ_k b_k (φ_k(θ) − μ_k)`,
+///
+/// `φ` the three Euler angles (radians) of the marker's bone, its parent and its children,
+/// `μ` their mean over the calibration frames, `a` the calibrated surface point on the rest
+/// mesh (metres) and `b_k` metres per radian. The surface point of a frame is the point of
+/// the rest mesh closest to `r(θ)` (among the triangles `candidates` near `a`, which bounds how far a pose
+/// outside the calibration frames' range carries it). Skin and
+/// the suit slide over the joints: an elbow marker's distance to the wrist bar changes by
+/// 60 mm between a bent and a straight arm on Thomas, which no fixed point of the rig's
+/// skin follows (docs/design/mocap.md, "Markers slide with the pose").
+#[derive(Clone, Debug)]
+pub struct PosePlacement {
+    /// `(bone, axis)` of each feature `φ_k`.
+    pub features: Vec<(usize, usize)>,
+    /// Mean `μ_k` of each feature over the calibration frames (radians).
+    pub mean: Vec<f64>,
+    /// Rest-mesh point `a` at the mean pose (metres).
+    pub at_mean: V3,
+    /// `b_k` (metres per radian).
+    pub slopes: Vec<V3>,
+    /// Triangles searched for the closest point: those with a vertex within 3 cm beyond the
+    /// farthest calibration-frame placement from `a` (at most 15 cm) on the rest mesh.
+    pub candidates: Vec<u32>,
+}
+
+impl PosePlacement {
+    /// `r(θ)` for the bone angles `angles` (rig order, radians).
+    pub fn rest_point(&self, angles: &[[f64; 3]]) -> V3 {
+        let phi: Vec<f64> = self.features.iter().map(|&(b, a)| angles[b][a]).collect();
+        self.at_features(&phi)
+    }
+
+    /// `a + Σ_k b_k (φ_k − μ_k)` for the feature values `phi`.
+    fn at_features(&self, phi: &[f64]) -> V3 {
+        self.mean
+            .iter()
+            .zip(&self.slopes)
+            .zip(phi)
+            .fold(self.at_mean, |r, ((m, s), x)| add(r, scale(*s, x - m)))
+    }
+}
+
+/// Weighted ridge regression of 3-vectors on features: the `B` (`k` rows of 3) minimising
+/// `Σ_f w_f |y_f − ȳ − Bᵀ(x_f − x̄)|² + λ Σ_f w_f |B|²`, with `x̄`, `ȳ` the weighted means.
+/// Returns `(x̄, B)`; `None` when the samples carry no weight or the system is singular
+/// (`λ = 0` with features that do not vary).
+pub fn ridge_fit(samples: &[(Vec<f64>, V3, f64)], lambda: f64) -> Option<(Vec<f64>, Vec<V3>)> {
+    let k = samples.first()?.0.len();
+    let wsum: f64 = samples.iter().map(|s| s.2).sum();
+    if wsum.is_nan() || wsum <= 0.0 {
+        return None;
+    }
+    let mut xbar = vec![0.0; k];
+    let mut ybar = [0.0; 3];
+    for (x, y, w) in samples {
+        for (m, v) in xbar.iter_mut().zip(x) {
+            *m += w * v / wsum;
+        }
+        ybar = add(ybar, scale(*y, w / wsum));
+    }
+    let mut a = faer::Mat::<f64>::zeros(k, k);
+    let mut rhs = faer::Mat::<f64>::zeros(k, 3);
+    for (x, y, w) in samples {
+        let d = sub(*y, ybar);
+        for p in 0..k {
+            let xp = x[p] - xbar[p];
+            for q in 0..k {
+                a[(p, q)] += w * xp * (x[q] - xbar[q]);
+            }
+            for c in 0..3 {
+                rhs[(p, c)] += w * xp * d[c];
+            }
+        }
+    }
+    for p in 0..k {
+        a[(p, p)] += lambda * wsum;
+    }
+    use faer::linalg::solvers::Solve;
+    let llt = a.llt(faer::Side::Lower).ok()?;
+    let b = llt.solve(&rhs);
+    let slopes: Vec<V3> = (0..k).map(|p| [b[(p, 0)], b[(p, 1)], b[(p, 2)]]).collect();
+    slopes
+        .iter()
+        .all(|s| s.iter().all(|v| v.is_finite()))
+        .then_some((xbar, slopes))
 }
 
 /// Per marker of `map`: the vertices of `rest` (`faces`) within `2σ` of its surface point,
@@ -349,6 +455,8 @@ struct IkOut {
     result: IkResult,
     residuals: Vec<f64>,
     weights: Vec<f64>,
+    /// The marker map of the solved pose (the pose-dependent placements moved).
+    map: MarkerMap,
 }
 
 impl MarkerSolver {
@@ -366,6 +474,10 @@ impl MarkerSolver {
             ("patch_weight", options.patch_weight),
             ("glitch_m (--glitch-m)", options.glitch_m),
             ("glitch_low_m (--glitch-low-m)", options.glitch_low_m),
+            (
+                "pose_placement_ridge (--pose-placement-ridge)",
+                options.pose_placement_ridge,
+            ),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(inv(format!("{name} = {v} must be finite and ≥ 0")));
@@ -448,7 +560,9 @@ impl MarkerSolver {
         st
     }
 
-    /// IK of one frame: `rounds` IRLS rounds from `warm` (whose mesh is `mesh`).
+    /// IK of one frame: `rounds` IRLS rounds from `warm` (whose mesh is `mesh`); with
+    /// `placement` (pose-dependent placements and the rest mesh) the markers are placed for
+    /// the pose each round starts from, and once more for the solved pose.
     #[allow(clippy::too_many_arguments)]
     fn ik_frame(
         &self,
@@ -462,7 +576,12 @@ impl MarkerSolver {
         iterations: usize,
         sigma: f64,
         temporal: Option<TemporalPrior>,
+        placement: Option<(&[Option<PosePlacement>], &[V3])>,
     ) -> Result<IkOut> {
+        // With pose-dependent placements, `map` is `base_map` placed for the current pose.
+        let base_map = map;
+        let mut owned: MarkerMap;
+        let mut map = base_map;
         let inv = |e: panoman_fit::FitError| MocapError::Invalid {
             what: format!("marker IK: {e}"),
         };
@@ -486,7 +605,14 @@ impl MarkerSolver {
         let mut cur = mesh.to_vec();
         let mut last = None;
         let mut residuals = vec![f64::NAN; nm];
-        for _ in 0..rounds.max(1) {
+        for round in 0..rounds.max(1) {
+            // Later rounds start from the pose the previous one placed the markers for.
+            if round == 0
+                && let Some((pp, rest)) = placement
+            {
+                owned = self.posed_map(base_map, pp, rest, &state);
+                map = &owned;
+            }
             let normals = vertex_normals(self.faces(), &cur, self.template.normal_sign);
             let points: Vec<PointTarget> = map
                 .markers
@@ -516,6 +642,10 @@ impl MarkerSolver {
             let r = self.ik.solve_with_points(&kp, &points, &cfg).map_err(inv)?;
             state = r.state.clone();
             cur.clone_from(&r.posed);
+            if let Some((pp, rest)) = placement {
+                owned = self.posed_map(base_map, pp, rest, &state);
+                map = &owned;
+            }
             residuals = self.residuals(map, obs, active, &cur);
             for i in 0..nm {
                 if residuals[i].is_finite() {
@@ -530,6 +660,7 @@ impl MarkerSolver {
             result: last.expect("one round"),
             residuals,
             weights,
+            map: map.clone(),
         })
     }
 
@@ -592,6 +723,7 @@ impl MarkerSolver {
                 40,
                 0.15,
                 None,
+                None,
             )?;
             states.push((r.result.state.clone(), r.result.posed.clone()));
         }
@@ -605,6 +737,10 @@ impl MarkerSolver {
             .map(|m| surface_point(self.faces(), &rest, m.triangle, m.barycentric))
             .collect();
         let mut mean_res = f64::NAN;
+        // The pose-dependent placements from the second half of the rounds on, once the
+        // fixed placements have settled.
+        let mut pp: Vec<Option<PosePlacement>> = Vec::new();
+        let pp_start = o.calibration_rounds.max(1).div_ceil(2);
         for round in 0..o.calibration_rounds.max(1) {
             // Wide weights first (the initial placement may be centimetres off), then the
             // tracking σ.
@@ -624,12 +760,17 @@ impl MarkerSolver {
                     20,
                     sigma,
                     None,
+                    (!pp.is_empty()).then_some((pp.as_slice(), rest.as_slice())),
                 )?;
                 states[k] = (r.result.state.clone(), r.result.posed.clone());
                 outs.push(r);
             }
             let obs: Vec<Obs> = calib.iter().map(|&f| seq.frame(f)).collect();
-            self.marker_step(&mut map, initial, &init_rest, &rest, &outs, &obs, active);
+            let samples =
+                self.marker_step(&mut map, initial, &init_rest, &rest, &outs, &obs, active);
+            if o.pose_placement_ridge > 0.0 && round + 1 >= pp_start {
+                pp = self.fit_pose_placement(&map, &rest, &outs, &samples);
+            }
             let all: Vec<f64> = outs
                 .iter()
                 .flat_map(|r| r.residuals.iter().copied().filter(|x| x.is_finite()))
@@ -659,10 +800,120 @@ impl MarkerSolver {
             mean_marker_shift_mm: 1e3 * shift,
             patches,
             seconds: t0.elapsed().as_secs_f64(),
+            pose_placement: pp,
         })
     }
 
-    /// The marker-placement step of the calibration (see the module docs).
+    /// `map` with each marker that has a pose-dependent placement moved to its surface point
+    /// for the bone angles of `state` ([`PosePlacement`]; `rest` is the calibrated rest mesh).
+    pub fn posed_map(
+        &self,
+        map: &MarkerMap,
+        placement: &[Option<PosePlacement>],
+        rest: &[V3],
+        state: &IkState,
+    ) -> MarkerMap {
+        let faces = self.faces();
+        let mut m = map.clone();
+        for (mk, p) in m.markers.iter_mut().zip(placement) {
+            let Some(p) = p else { continue };
+            let r = p.rest_point(&state.angles);
+            let mut best = (f64::INFINITY, mk.triangle, mk.barycentric);
+            for &t in &p.candidates {
+                let [a, b, c] = faces[t as usize].map(|k| rest[k as usize]);
+                let bc = closest_on_triangle(r, a, b, c);
+                let q = add(add(scale(a, bc[0]), scale(b, bc[1])), scale(c, bc[2]));
+                let d = sub(q, r);
+                if dot(d, d) < best.0 {
+                    best = (dot(d, d), t, bc);
+                }
+            }
+            mk.triangle = best.1;
+            mk.barycentric = best.2;
+        }
+        m
+    }
+
+    /// The marker map of a solved frame: `cal.map` with the pose-dependent placements at
+    /// the frame's bone angles.
+    pub fn frame_map(&self, cal: &Calibration, frame: &SolvedFrame) -> MarkerMap {
+        if cal.pose_placement.iter().all(Option::is_none) {
+            return cal.map.clone();
+        }
+        let st = IkState::from_params(&frame.rig_params, self.bone_names().len());
+        self.posed_map(&cal.map, &cal.pose_placement, &cal.rest, &st)
+    }
+
+    /// Fits each marker's [`PosePlacement`] from the calibration frames' solves `outs`: the
+    /// marker step's per-frame rest-mesh points under the observation (`samples`) regressed
+    /// on the angles of the marker's bone, its parent and its children ([`ridge_fit`] with
+    /// [`SolveOptions::pose_placement_ridge`], the frames' IRLS weights). `None` for a
+    /// marker with fewer than 8 frames (or no bone in the rig): it keeps its fixed place.
+    fn fit_pose_placement(
+        &self,
+        map: &MarkerMap,
+        rest: &[V3],
+        outs: &[IkOut],
+        samples: &[Vec<PlacementSample>],
+    ) -> Vec<Option<PosePlacement>> {
+        let faces = self.faces();
+        let names = self.bone_names();
+        let parents = self.rig.generator.bone_parents();
+        let lambda = self.options.pose_placement_ridge;
+        map.markers
+            .iter()
+            .zip(samples)
+            .map(|(m, samples)| {
+                if samples.len() < 8 {
+                    return None;
+                }
+                let b = names.iter().position(|n| *n == m.bone)?;
+                let mut bones = vec![b];
+                bones.extend(parents[b]);
+                bones.extend((0..names.len()).filter(|&c| parents[c] == Some(b)));
+                let features: Vec<(usize, usize)> = bones
+                    .iter()
+                    .flat_map(|&b| (0..3).map(move |a| (b, a)))
+                    .collect();
+                let phi = |k: usize| -> Vec<f64> {
+                    let angles = &outs[k].result.state.angles;
+                    features.iter().map(|&(b, a)| angles[b][a]).collect()
+                };
+                let rows: Vec<(Vec<f64>, V3, f64)> = samples
+                    .iter()
+                    .map(|s| (phi(s.frame), s.on_rest, s.weight))
+                    .collect();
+                let (mean, slopes) = ridge_fit(&rows, lambda)?;
+                let mut pp = PosePlacement {
+                    features,
+                    mean,
+                    at_mean: surface_point(faces, rest, m.triangle, m.barycentric),
+                    slopes,
+                    candidates: Vec::new(),
+                };
+                // The search reaches 3 cm beyond the calibration frames' farthest placement
+                // (at most 15 cm): a pose outside their range does not carry the marker
+                // further than that.
+                let reach = rows
+                    .iter()
+                    .map(|(x, _, _)| norm(sub(pp.at_features(x), pp.at_mean)))
+                    .fold(0.0, f64::max);
+                let radius = (reach + 0.03).min(0.15);
+                pp.candidates = (0..faces.len() as u32)
+                    .filter(|&t| {
+                        faces[t as usize].iter().any(|&k| {
+                            let d = sub(rest[k as usize], pp.at_mean);
+                            dot(d, d) < radius * radius
+                        })
+                    })
+                    .collect();
+                Some(pp)
+            })
+            .collect()
+    }
+
+    /// The marker-placement step of the calibration (see the module docs); returns each
+    /// marker's per-frame samples (for [`PosePlacement`]).
     #[allow(clippy::too_many_arguments)]
     fn marker_step(
         &self,
@@ -673,29 +924,41 @@ impl MarkerSolver {
         outs: &[IkOut],
         obs: &[Obs],
         active: &[bool],
-    ) {
+    ) -> Vec<Vec<PlacementSample>> {
         let o = &self.options;
         let faces = self.faces();
+        let normals: Vec<Vec<V3>> = outs
+            .iter()
+            .map(|r| vertex_normals(faces, &r.result.posed, self.template.normal_sign))
+            .collect();
+        let mut samples = vec![Vec::new(); map.markers.len()];
         for (i, m) in map.markers.iter_mut().enumerate() {
             if !active[i] {
                 continue;
             }
             let (mut acc, mut wsum, mut dsum) = ([0.0; 3], 0.0, 0.0);
-            for (r, ob) in outs.iter().zip(obs) {
+            for (k, (r, ob)) in outs.iter().zip(obs).enumerate() {
                 let w = r.weights[i];
                 if !(w > 0.0 && finite(&ob[i])) {
                     continue;
                 }
                 let x = &r.result.posed;
-                let normals = vertex_normals(faces, x, self.template.normal_sign);
-                let n = surface_normal(faces, &normals, m.triangle, m.barycentric);
+                // The frame's own placement (pose-dependent) gives the normal.
+                let pm = &r.map.markers[i];
+                let n = surface_normal(faces, &normals[k], pm.triangle, pm.barycentric);
                 let s = sub(ob[i], scale(n, m.offset_m));
                 let (t, b) = closest_point(faces, x, s, 0.08);
                 let q = surface_point(faces, x, t, b);
-                let nq = surface_normal(faces, &normals, t, b);
-                acc = add(acc, scale(surface_point(faces, rest, t, b), w));
+                let nq = surface_normal(faces, &normals[k], t, b);
+                let on_rest = surface_point(faces, rest, t, b);
+                acc = add(acc, scale(on_rest, w));
                 dsum += w * dot(sub(ob[i], q), nq);
                 wsum += w;
+                samples[i].push(PlacementSample {
+                    frame: k,
+                    on_rest,
+                    weight: w,
+                });
             }
             if wsum <= 0.0 {
                 continue;
@@ -713,7 +976,18 @@ impl MarkerSolver {
             let off0 = initial.markers[i].offset_m;
             m.offset_m = ((dsum + lambda * off0) / (wsum + lambda)).clamp(0.003, 0.06);
         }
+        samples
     }
+}
+
+/// One calibration frame's evidence for a marker's placement: the rest-mesh point under its
+/// observation and the frame's IRLS weight.
+#[derive(Clone, Debug)]
+struct PlacementSample {
+    /// Index into the calibration frames.
+    frame: usize,
+    on_rest: V3,
+    weight: f64,
 }
 
 /// Up to `n` frames of `frames`, evenly spread, each with ≥ 3 active markers observed
@@ -895,6 +1169,8 @@ impl MarkerSolver {
                     o.track_iterations,
                     o.robust_sigma_m,
                     temporal,
+                    (!cal.pose_placement.is_empty())
+                        .then_some((cal.pose_placement.as_slice(), cal.rest.as_slice())),
                 )?
             }
             None => {
@@ -910,6 +1186,8 @@ impl MarkerSolver {
                     40,
                     o.robust_sigma_m,
                     None,
+                    (!cal.pose_placement.is_empty())
+                        .then_some((cal.pose_placement.as_slice(), cal.rest.as_slice())),
                 )?
             }
         };
@@ -939,7 +1217,7 @@ impl MarkerSolver {
         }
         let (vertices, params, stages) = self.shell_frame(&ik, obs, cal, active, carry)?;
         stage_seconds.extend(stages);
-        let residuals = self.residuals(map, obs, active, &vertices);
+        let residuals = self.residuals(&ik.map, obs, active, &vertices);
         let outliers = count_outliers(&residuals, o.outlier_m);
         let next = Carry {
             state,
@@ -975,7 +1253,7 @@ impl MarkerSolver {
         let faces = self.template.faces.clone();
         let x = &ik.result.posed;
         let normals = vertex_normals(&faces, x, self.template.normal_sign);
-        let targets: Vec<Option<V3>> = cal
+        let targets: Vec<Option<V3>> = ik
             .map
             .markers
             .iter()
@@ -989,7 +1267,7 @@ impl MarkerSolver {
             .collect();
         let handles = marker_handles(
             &faces,
-            &cal.map,
+            &ik.map,
             x,
             &targets,
             &ik.weights,
@@ -1130,7 +1408,7 @@ impl MarkerSolver {
             };
             let solved = self.track(seq, &sub_frames, &cal, &active)?;
             for s in &solved {
-                let mm = self.model_markers(&full.map, &s.vertices);
+                let mm = self.model_markers(&self.frame_map(full, s), &s.vertices);
                 let obs = seq.frame(s.frame);
                 for i in (0..nm).filter(|&i| !active[i] && finite(&obs[i])) {
                     let e = norm(sub(mm[i], obs[i]));
@@ -1182,7 +1460,7 @@ impl MarkerSolver {
             },
             observations: [kept.len(), inliers.len(), all.len()],
             method: format!(
-                "{k}-fold over markers (marker i in fold i mod {k}); {}; each fold tracked without its markers on every {}-th frame (calibration frames left out); error = |observed − (surface point + offset·n̂)| on the solved mesh, with the held-out marker's placement from the full calibration (MoSh); capture glitches (markers that leave their rigid neighbours) are missing; `mean` leaves out the markers that no other marker of their fold observes (`unobservable`), `mean_all` keeps them",
+                "{k}-fold over markers (marker i in fold i mod {k}); {}; each fold tracked without its markers on every {}-th frame (calibration frames left out); error = |observed − (surface point + offset·n̂)| on the solved mesh, with the held-out marker's placement from the full calibration (MoSh), moved to the solved pose when the placement is pose-dependent (pose_placement_ridge > 0); capture glitches (markers that leave their rigid neighbours) are missing; `mean` leaves out the markers that no other marker of their fold observes (`unobservable`), `mean_all` keeps them",
                 if self.options.held_out_recalibrate {
                     "each fold calibrated anew without its markers"
                 } else {

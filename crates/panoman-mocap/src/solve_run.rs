@@ -293,7 +293,7 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
             .zip(&observed)
             .map(|(f, obs)| {
                 solver
-                    .model_markers(&cal.map, &f.vertices)
+                    .model_markers(&solver.frame_map(&cal, f), &f.vertices)
                     .into_iter()
                     .zip(obs.iter())
                     .map(|(m, o)| {
@@ -408,6 +408,33 @@ pub fn write_solve(dir: &Path, out: &SolveOutput, faces: &[[u32; 3]]) -> Result<
     }
     let p = dir.join("marker_map.json");
     write_bytes_atomically(&p, &json_bytes(&out.calibration.map)).map_err(io(p.clone()))?;
+    let cal = &out.calibration;
+    if cal.pose_placement.iter().any(Option::is_some) {
+        // The pose-dependent part of the placement (`PosePlacement`), per marker that has one.
+        let v: Vec<serde_json::Value> = cal
+            .map
+            .markers
+            .iter()
+            .zip(&cal.pose_placement)
+            .filter_map(|(m, pp)| {
+                let pp = pp.as_ref()?;
+                let features: Vec<String> = pp
+                    .features
+                    .iter()
+                    .map(|&(b, a)| format!("{}.{}", bone_names[b], ["x", "y", "z"][a]))
+                    .collect();
+                Some(serde_json::json!({
+                    "marker": m.name,
+                    "rest_point_m": pp.at_mean,
+                    "features": features,
+                    "mean_rad": pp.mean,
+                    "slopes_m_per_rad": pp.slopes,
+                }))
+            })
+            .collect();
+        let p = dir.join("pose_placement.json");
+        write_bytes_atomically(&p, &json_bytes(&v)).map_err(io(p.clone()))?;
+    }
     let p = dir.join("report.json");
     write_bytes_atomically(&p, &json_bytes(&out.report)).map_err(io(p.clone()))?;
     Ok(())

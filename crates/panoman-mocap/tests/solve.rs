@@ -7,7 +7,7 @@ use panoman_mocap::c3d::{C3dWriteOptions, write_c3d};
 use panoman_mocap::marker_map::{default_set_for, default_sets};
 use panoman_mocap::solve::{MarkerSolver, SolveOptions};
 use panoman_mocap::solve_run::{
-    SolveRequest, load_capture, parse_frames, solve_capture, write_solve,
+    SolveRequest, initial_map, load_capture, parse_frames, solve_capture, write_solve,
 };
 
 fn data(name: &str) -> PathBuf {
@@ -127,6 +127,22 @@ fn lbs_solves_the_c3d_excerpt_with_held_out_error() {
         serde_json::from_slice(&std::fs::read(dir.join("marker_map.json")).unwrap()).unwrap();
     assert_eq!(map["topology"], "small");
     assert_eq!(map["markers"].as_array().unwrap().len(), 53);
+    // The pose-dependent placements: one entry per marker that has one, its features named
+    // by bone and axis, one slope (3-vector, m/rad) per feature.
+    let pp: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("pose_placement.json")).unwrap()).unwrap();
+    let pp = pp.as_array().unwrap();
+    assert_eq!(
+        pp.len(),
+        out.calibration.pose_placement.iter().flatten().count()
+    );
+    assert!(!pp.is_empty());
+    for e in pp {
+        let n = e["features"].as_array().unwrap().len();
+        assert!(n >= 6 && n % 3 == 0, "{e}");
+        assert_eq!(e["slopes_m_per_rad"].as_array().unwrap().len(), n);
+        assert_eq!(e["mean_rad"].as_array().unwrap().len(), n);
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -271,4 +287,90 @@ fn marker_patches_are_gaussian_discs_around_the_surface_points() {
         assert!((g - (-0.5 * d * d / (sigma * sigma)).exp()).abs() < 1e-12);
     }
     assert!(marker_patches(&faces, &map, &rest, 0.0)[0].is_empty());
+}
+
+#[test]
+fn ridge_fit_recovers_a_linear_placement_and_shrinks_it() {
+    use panoman_mocap::solve::ridge_fit;
+    // y = y0 + B x on two features, unequal weights.
+    let b = [[0.03, -0.01, 0.02], [0.0, 0.05, -0.04]];
+    let y0 = [0.1, 0.2, 0.3];
+    let samples: Vec<(Vec<f64>, [f64; 3], f64)> = (0..12)
+        .map(|k| {
+            let x = vec![(k as f64 * 0.7).sin(), (k as f64 * 1.3).cos() * 0.5];
+            let y: [f64; 3] = std::array::from_fn(|c| y0[c] + b[0][c] * x[0] + b[1][c] * x[1]);
+            (x, y, 1.0 + (k % 3) as f64)
+        })
+        .collect();
+    let (mean, slopes) = ridge_fit(&samples, 0.0).expect("fit");
+    let wsum: f64 = samples.iter().map(|s| s.2).sum();
+    let m0: f64 = samples.iter().map(|s| s.2 * s.0[0]).sum::<f64>() / wsum;
+    assert!((mean[0] - m0).abs() < 1e-12);
+    for k in 0..2 {
+        for c in 0..3 {
+            assert!((slopes[k][c] - b[k][c]).abs() < 1e-10, "{slopes:?}");
+        }
+    }
+    // A ridge shrinks the slopes toward 0 (‖B_λ‖ decreases with λ).
+    let norm = |s: &[[f64; 3]]| s.iter().flatten().map(|v| v * v).sum::<f64>();
+    let s1 = ridge_fit(&samples, 0.01).expect("fit").1;
+    let s2 = ridge_fit(&samples, 1.0).expect("fit").1;
+    assert!(norm(&s2) < norm(&s1) && norm(&s1) < norm(&slopes));
+    // A feature that never varies: singular without a ridge, slope 0 with one.
+    let flat: Vec<_> = samples
+        .iter()
+        .map(|(x, y, w)| (vec![x[0], 0.25], *y, *w))
+        .collect();
+    assert!(ridge_fit(&flat, 0.0).is_none());
+    assert_eq!(ridge_fit(&flat, 0.1).expect("fit").1[1], [0.0; 3]);
+    assert!(ridge_fit(&[], 0.1).is_none());
+}
+
+/// The pose-dependent placement nests the fixed one (slopes 0), so on the same frames the
+/// calibration residual with it is lower; at the calibration's mean pose a marker sits at
+/// its fixed surface point.
+#[test]
+fn pose_dependent_placement_follows_the_markers_closer() {
+    let m = model();
+    let seq = load_capture(&data("ThomasFechten_head.csm"), None).expect("capture");
+    let names = &seq.names;
+    let frames: Vec<usize> = (0..seq.n_frames()).collect();
+    let active = vec![true; names.len()];
+    let calibrate = |ridge: f64| {
+        let solver = MarkerSolver::new(
+            &m,
+            SolveOptions {
+                method: Method::Lbs,
+                calibration_frames: 40,
+                calibration_rounds: 6,
+                pose_placement_ridge: ridge,
+                ..SolveOptions::default()
+            },
+        )
+        .expect("solver");
+        let map = initial_map(&solver, names, None, None).expect("placed");
+        let cal = solver
+            .calibrate(&seq, &frames, &map, &active)
+            .expect("calibrated");
+        (solver, cal)
+    };
+    let (_, fixed) = calibrate(0.0);
+    let (solver, posed) = calibrate(0.05);
+    assert!(fixed.pose_placement.iter().all(Option::is_none));
+    let n_posed = posed.pose_placement.iter().flatten().count();
+    assert!(n_posed >= names.len() / 2, "{n_posed} of {}", names.len());
+    assert!(
+        posed.mean_residual_mm < fixed.mean_residual_mm,
+        "{} vs {}",
+        posed.mean_residual_mm,
+        fixed.mean_residual_mm
+    );
+    for (pm, pp) in posed.map.markers.iter().zip(&posed.pose_placement) {
+        let Some(pp) = pp else { continue };
+        let mut angles = vec![[0.0; 3]; solver.bone_names().len()];
+        for (&(b, a), mu) in pp.features.iter().zip(&pp.mean) {
+            angles[b][a] = *mu;
+        }
+        assert_eq!(pp.rest_point(&angles), pp.at_mean, "{}", pm.name);
+    }
 }

@@ -111,6 +111,11 @@ pub struct SolveArgs {
     /// at or above the threshold turns it off).
     #[arg(long)]
     pub glitch_low_m: Option<f64>,
+    /// Ridge λ (rad²) of the pose-dependent marker placements: each marker's surface point
+    /// moves linearly with the angles of the bones around it, fitted in the calibration
+    /// (default: `SolveOptions`, 0.05; 0: one fixed surface point per marker).
+    #[arg(long)]
+    pub pose_placement_ridge: Option<f64>,
     /// Weight λ_T (m²) of the tracking's temporal prior on the rig's bone angles (toward the
     /// previous frame's; default: `SolveOptions`, 3e-4; 0: none): less jitter, a little lag.
     #[arg(long)]
@@ -252,6 +257,7 @@ fn run_solve(a: SolveArgs) -> Result<()> {
             calibration_rounds: a.calibration_rounds.unwrap_or(d.calibration_rounds).max(1),
             glitch_m: a.glitch_m.unwrap_or(d.glitch_m),
             glitch_low_m: a.glitch_low_m.unwrap_or(d.glitch_low_m),
+            pose_placement_ridge: a.pose_placement_ridge.unwrap_or(d.pose_placement_ridge),
             temporal_prior: a.temporal_prior.unwrap_or(d.temporal_prior),
             patch_sigma_m: a.patch_sigma.unwrap_or(d.patch_sigma_m),
             held_out_recalibrate: a.held_out_recalibrate,
