@@ -28,12 +28,13 @@
 //!   once with every marker) or, with `held_out_recalibrate`, a calibration of its own
 //!   without them; a left-out marker's error is the distance of its observation from its
 //!   surface point + offset **of the full calibration** on the solved mesh (placed for the
-//!   solved pose, [`MarkerSolver::frame_map`]). `mean` counts
+//!   solved pose, [`SolvedFrame::map`]). `mean` counts
 //!   the markers that stay observable in their fold ([`MarkerSolver::observable`]),
 //!   `mean_all` every one; capture glitches ([`crate::glitch`]) are missing observations.
 use std::collections::BTreeMap;
 use std::time::Instant;
 
+use faer::linalg::solvers::Solve;
 use panoman::Method;
 use panoman_fit::ik::{
     IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget, TemporalPrior,
@@ -123,10 +124,12 @@ pub struct SolveOptions {
     /// half of `glitch_m`.
     pub glitch_low_m: f64,
     /// Ridge `λ` (rad², per frame) of the pose-dependent marker placements
-    /// ([`PosePlacement`], fitted from the second half of the calibration rounds on);
-    /// 0: each marker keeps one fixed surface point. Default 0.05. LBS, full captures
-    /// (Thomas every 2nd frame), held-out `mean` fixed → pose-dependent: nick 10.17 → 9.05
-    /// mm, Thomas 11.89 → 11.03 mm (λ 0.2: 9.39 / 11.42; docs/design/mocap.md).
+    /// ([`PosePlacement`], fitted after calibration round ⌈R/2⌉ and after each later one);
+    /// 0: each marker keeps one fixed surface point. Default 0.05. Held-out `mean`, full
+    /// captures (`panoman mocap eval`), fixed → pose-dependent, PanoMan / LBS: nick 9.92 /
+    /// 10.21 → 8.57 / 9.01 mm, Thomas (every 2nd frame) 11.47 / 11.89 → 10.33 / 10.69 mm;
+    /// calibrated on the first half and evaluated on the second (LBS): nick 11.43 → 11.00,
+    /// Thomas 13.44 → 12.30 mm (docs/design/mocap.md "Markers slide with the pose").
     pub pose_placement_ridge: f64,
     /// PanoMan's shell-fit options of a warm-started tracking frame (the first frame uses
     /// `FitOptions::default()`). Default [`panoman_fit::fit::warm_fit_options`].
@@ -187,31 +190,47 @@ pub struct Calibration {
     pub pose_placement: Vec<Option<PosePlacement>>,
 }
 
+impl Calibration {
+    /// The pose-dependent placements and the rest mesh they live on; `None` when every
+    /// marker keeps a fixed surface point (`pose_placement_ridge` 0, or too few frames).
+    pub fn placement(&self) -> Option<(&[Option<PosePlacement>], &[V3])> {
+        self.pose_placement
+            .iter()
+            .any(Option::is_some)
+            .then_some((self.pose_placement.as_slice(), self.rest.as_slice()))
+    }
+}
+
 /// A marker's pose-dependent placement: where on the rest mesh it sits as a linear function
 /// of the angles of the bones around it,
 ///
 /// `r(θ) = a + Σ_k b_k (φ_k(θ) − μ_k)`,
 ///
-/// `φ` the three Euler angles (radians) of the marker's bone, its parent and its children,
-/// `μ` their mean over the calibration frames, `a` the calibrated surface point on the rest
-/// mesh (metres) and `b_k` metres per radian. The surface point of a frame is the point of
-/// the rest mesh closest to `r(θ)` (among the triangles `candidates` near `a`, which bounds how far a pose
-/// outside the calibration frames' range carries it). Skin and
-/// the suit slide over the joints: an elbow marker's distance to the wrist bar changes by
-/// 60 mm between a bent and a straight arm on Thomas, which no fixed point of the rig's
-/// skin follows (docs/design/mocap.md, "Markers slide with the pose").
+/// `φ` the three Euler angles (radians) of the marker's bone, its parent and its children
+/// (the root's unused angles left out), `μ` their mean over the calibration frames that
+/// observed the marker (weighted by the frames' IRLS weights), `a` the marker's fixed
+/// calibrated surface point on the rest mesh (metres; the marker step's weighted mean with
+/// its prior and bound, not the regression's own centre) and `b_k` metres per radian. The
+/// surface point of a frame is the point of the rest mesh closest to `r(θ)` among the
+/// triangles `candidates` near `a` (which bounds how far a pose outside the calibration
+/// frames' range carries it). Skin and the suit slide over the joints: an elbow marker's
+/// distance to the wrist bar changes by 60 mm between a bent and a straight arm on Thomas,
+/// which no fixed point of the rig's skin follows (docs/design/mocap.md, "Markers slide with
+/// the pose"). PanoMan's surface patch of a marker stays around its fixed point `a`; it
+/// moves by the marker's displacement like the marker's triangle.
 #[derive(Clone, Debug)]
 pub struct PosePlacement {
     /// `(bone, axis)` of each feature `φ_k`.
     pub features: Vec<(usize, usize)>,
-    /// Mean `μ_k` of each feature over the calibration frames (radians).
+    /// Mean `μ_k` of each feature over the calibration frames (IRLS-weighted; radians).
     pub mean: Vec<f64>,
     /// Rest-mesh point `a` at the mean pose (metres).
     pub at_mean: V3,
     /// `b_k` (metres per radian).
     pub slopes: Vec<V3>,
-    /// Triangles searched for the closest point: those with a vertex within 3 cm beyond the
-    /// farthest calibration-frame placement from `a` (at most 15 cm) on the rest mesh.
+    /// Triangles searched for the closest point: the marker's fixed triangle and those with
+    /// a vertex within 3 cm beyond the farthest calibration-frame placement from `a` (at most
+    /// 15 cm) on the rest mesh.
     pub candidates: Vec<u32>,
 }
 
@@ -267,7 +286,6 @@ pub fn ridge_fit(samples: &[(Vec<f64>, V3, f64)], lambda: f64) -> Option<(Vec<f6
     for p in 0..k {
         a[(p, p)] += lambda * wsum;
     }
-    use faer::linalg::solvers::Solve;
     let llt = a.llt(faer::Side::Lower).ok()?;
     let b = llt.solve(&rhs);
     let slopes: Vec<V3> = (0..k).map(|p| [b[(p, 0)], b[(p, 1)], b[(p, 2)]]).collect();
@@ -329,6 +347,17 @@ pub struct SolvedFrame {
     /// with the first β-step, `shell_keypoints` with the guidance and the V-step,
     /// `shell_params` with the last β-step and the placement).
     pub stage_seconds: Vec<(String, f64)>,
+    /// The markers' placement of this frame when it is pose-dependent
+    /// ([`PosePlacement`]; `None`: the calibration's fixed map, see [`SolvedFrame::map`]).
+    pub placement: Option<MarkerMap>,
+}
+
+impl SolvedFrame {
+    /// The marker map this frame was solved with: its pose-dependent placement, else the
+    /// calibration's map.
+    pub fn map<'a>(&'a self, cal: &'a Calibration) -> &'a MarkerMap {
+        self.placement.as_ref().unwrap_or(&cal.map)
+    }
 }
 
 /// Per-frame line of the report.
@@ -578,10 +607,6 @@ impl MarkerSolver {
         temporal: Option<TemporalPrior>,
         placement: Option<(&[Option<PosePlacement>], &[V3])>,
     ) -> Result<IkOut> {
-        // With pose-dependent placements, `map` is `base_map` placed for the current pose.
-        let base_map = map;
-        let mut owned: MarkerMap;
-        let mut map = base_map;
         let inv = |e: panoman_fit::FitError| MocapError::Invalid {
             what: format!("marker IK: {e}"),
         };
@@ -605,16 +630,14 @@ impl MarkerSolver {
         let mut cur = mesh.to_vec();
         let mut last = None;
         let mut residuals = vec![f64::NAN; nm];
-        for round in 0..rounds.max(1) {
-            // Later rounds start from the pose the previous one placed the markers for.
-            if round == 0
-                && let Some((pp, rest)) = placement
-            {
-                owned = self.posed_map(base_map, pp, rest, &state);
-                map = &owned;
-            }
+        // `map` placed for a pose (pose-dependent placements; `None`: `map` as it is). Each
+        // round starts from the placement of the pose it starts from.
+        let place = |st: &IkState| placement.map(|(pp, rest)| self.posed_map(map, pp, rest, st));
+        let mut placed = place(&state);
+        for _ in 0..rounds.max(1) {
+            let round_map = placed.as_ref().unwrap_or(map);
             let normals = vertex_normals(self.faces(), &cur, self.template.normal_sign);
-            let points: Vec<PointTarget> = map
+            let points: Vec<PointTarget> = round_map
                 .markers
                 .iter()
                 .enumerate()
@@ -642,11 +665,8 @@ impl MarkerSolver {
             let r = self.ik.solve_with_points(&kp, &points, &cfg).map_err(inv)?;
             state = r.state.clone();
             cur.clone_from(&r.posed);
-            if let Some((pp, rest)) = placement {
-                owned = self.posed_map(base_map, pp, rest, &state);
-                map = &owned;
-            }
-            residuals = self.residuals(map, obs, active, &cur);
+            placed = place(&state);
+            residuals = self.residuals(placed.as_ref().unwrap_or(map), obs, active, &cur);
             for i in 0..nm {
                 if residuals[i].is_finite() {
                     let s2 = sigma * sigma;
@@ -660,7 +680,7 @@ impl MarkerSolver {
             result: last.expect("one round"),
             residuals,
             weights,
-            map: map.clone(),
+            map: placed.unwrap_or_else(|| map.clone()),
         })
     }
 
@@ -737,10 +757,10 @@ impl MarkerSolver {
             .map(|m| surface_point(self.faces(), &rest, m.triangle, m.barycentric))
             .collect();
         let mut mean_res = f64::NAN;
-        // The pose-dependent placements from the second half of the rounds on, once the
-        // fixed placements have settled.
-        let mut pp: Vec<Option<PosePlacement>> = Vec::new();
-        let pp_start = o.calibration_rounds.max(1).div_ceil(2);
+        // The pose-dependent placements: fitted after round ⌈R/2⌉, once the fixed
+        // placements have settled, and used from the next round on.
+        let mut placements: Vec<Option<PosePlacement>> = Vec::new();
+        let first_fit = o.calibration_rounds.max(1).div_ceil(2);
         for round in 0..o.calibration_rounds.max(1) {
             // Wide weights first (the initial placement may be centimetres off), then the
             // tracking σ.
@@ -760,7 +780,10 @@ impl MarkerSolver {
                     20,
                     sigma,
                     None,
-                    (!pp.is_empty()).then_some((pp.as_slice(), rest.as_slice())),
+                    placements
+                        .iter()
+                        .any(Option::is_some)
+                        .then_some((placements.as_slice(), rest.as_slice())),
                 )?;
                 states[k] = (r.result.state.clone(), r.result.posed.clone());
                 outs.push(r);
@@ -768,8 +791,8 @@ impl MarkerSolver {
             let obs: Vec<Obs> = calib.iter().map(|&f| seq.frame(f)).collect();
             let samples =
                 self.marker_step(&mut map, initial, &init_rest, &rest, &outs, &obs, active);
-            if o.pose_placement_ridge > 0.0 && round + 1 >= pp_start {
-                pp = self.fit_pose_placement(&map, &rest, &outs, &samples);
+            if o.pose_placement_ridge > 0.0 && round + 1 >= first_fit {
+                placements = self.fit_pose_placement(&map, &rest, &outs, &samples);
             }
             let all: Vec<f64> = outs
                 .iter()
@@ -800,7 +823,7 @@ impl MarkerSolver {
             mean_marker_shift_mm: 1e3 * shift,
             patches,
             seconds: t0.elapsed().as_secs_f64(),
-            pose_placement: pp,
+            pose_placement: placements,
         })
     }
 
@@ -834,21 +857,12 @@ impl MarkerSolver {
         m
     }
 
-    /// The marker map of a solved frame: `cal.map` with the pose-dependent placements at
-    /// the frame's bone angles.
-    pub fn frame_map(&self, cal: &Calibration, frame: &SolvedFrame) -> MarkerMap {
-        if cal.pose_placement.iter().all(Option::is_none) {
-            return cal.map.clone();
-        }
-        let st = IkState::from_params(&frame.rig_params, self.bone_names().len());
-        self.posed_map(&cal.map, &cal.pose_placement, &cal.rest, &st)
-    }
-
     /// Fits each marker's [`PosePlacement`] from the calibration frames' solves `outs`: the
     /// marker step's per-frame rest-mesh points under the observation (`samples`) regressed
     /// on the angles of the marker's bone, its parent and its children ([`ridge_fit`] with
     /// [`SolveOptions::pose_placement_ridge`], the frames' IRLS weights). `None` for a
-    /// marker with fewer than 8 frames (or no bone in the rig): it keeps its fixed place.
+    /// marker with fewer than [`MIN_PLACEMENT_FRAMES`] frames (or no bone in the rig): it
+    /// keeps its fixed place.
     fn fit_pose_placement(
         &self,
         map: &MarkerMap,
@@ -863,23 +877,25 @@ impl MarkerSolver {
         map.markers
             .iter()
             .zip(samples)
-            .map(|(m, samples)| {
-                if samples.len() < 8 {
+            .map(|(m, marker_samples)| {
+                if marker_samples.len() < MIN_PLACEMENT_FRAMES {
                     return None;
                 }
-                let b = names.iter().position(|n| *n == m.bone)?;
-                let mut bones = vec![b];
-                bones.extend(parents[b]);
-                bones.extend((0..names.len()).filter(|&c| parents[c] == Some(b)));
+                let bone = names.iter().position(|n| *n == m.bone)?;
+                let mut bones = vec![bone];
+                bones.extend(parents[bone]);
+                bones.extend((0..names.len()).filter(|&c| parents[c] == Some(bone)));
+                // Bone 0's angles are unused (the root's rotation is the state's own).
                 let features: Vec<(usize, usize)> = bones
                     .iter()
-                    .flat_map(|&b| (0..3).map(move |a| (b, a)))
+                    .filter(|&&b| b != 0)
+                    .flat_map(|&b| (0..3).map(move |axis| (b, axis)))
                     .collect();
                 let phi = |k: usize| -> Vec<f64> {
                     let angles = &outs[k].result.state.angles;
-                    features.iter().map(|&(b, a)| angles[b][a]).collect()
+                    features.iter().map(|&(b, axis)| angles[b][axis]).collect()
                 };
-                let rows: Vec<(Vec<f64>, V3, f64)> = samples
+                let rows: Vec<(Vec<f64>, V3, f64)> = marker_samples
                     .iter()
                     .map(|s| (phi(s.frame), s.on_rest, s.weight))
                     .collect();
@@ -901,10 +917,11 @@ impl MarkerSolver {
                 let radius = (reach + 0.03).min(0.15);
                 pp.candidates = (0..faces.len() as u32)
                     .filter(|&t| {
-                        faces[t as usize].iter().any(|&k| {
-                            let d = sub(rest[k as usize], pp.at_mean);
-                            dot(d, d) < radius * radius
-                        })
+                        t == m.triangle
+                            || faces[t as usize].iter().any(|&k| {
+                                let d = sub(rest[k as usize], pp.at_mean);
+                                dot(d, d) < radius * radius
+                            })
                     })
                     .collect();
                 Some(pp)
@@ -979,6 +996,10 @@ impl MarkerSolver {
         samples
     }
 }
+
+/// Frames a marker needs in the calibration for a pose-dependent placement (with fewer it
+/// keeps its fixed surface point; the ridge keeps the slopes of a small sample small).
+const MIN_PLACEMENT_FRAMES: usize = 8;
 
 /// One calibration frame's evidence for a marker's placement: the rest-mesh point under its
 /// observation and the frame's IRLS weight.
@@ -1169,8 +1190,7 @@ impl MarkerSolver {
                     o.track_iterations,
                     o.robust_sigma_m,
                     temporal,
-                    (!cal.pose_placement.is_empty())
-                        .then_some((cal.pose_placement.as_slice(), cal.rest.as_slice())),
+                    cal.placement(),
                 )?
             }
             None => {
@@ -1186,8 +1206,7 @@ impl MarkerSolver {
                     40,
                     o.robust_sigma_m,
                     None,
-                    (!cal.pose_placement.is_empty())
-                        .then_some((cal.pose_placement.as_slice(), cal.rest.as_slice())),
+                    cal.placement(),
                 )?
             }
         };
@@ -1207,6 +1226,7 @@ impl MarkerSolver {
                 outliers,
                 seconds: 0.0,
                 stage_seconds,
+                placement: cal.placement().map(|_| ik.map.clone()),
             };
             let next = Carry {
                 state,
@@ -1237,6 +1257,7 @@ impl MarkerSolver {
             outliers,
             seconds: 0.0,
             stage_seconds,
+            placement: cal.placement().map(|_| ik.map.clone()),
         };
         Ok((frame, next))
     }
@@ -1408,7 +1429,7 @@ impl MarkerSolver {
             };
             let solved = self.track(seq, &sub_frames, &cal, &active)?;
             for s in &solved {
-                let mm = self.model_markers(&self.frame_map(full, s), &s.vertices);
+                let mm = self.model_markers(s.map(full), &s.vertices);
                 let obs = seq.frame(s.frame);
                 for i in (0..nm).filter(|&i| !active[i] && finite(&obs[i])) {
                     let e = norm(sub(mm[i], obs[i]));

@@ -293,7 +293,7 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
             .zip(&observed)
             .map(|(f, obs)| {
                 solver
-                    .model_markers(&solver.frame_map(&cal, f), &f.vertices)
+                    .model_markers(f.map(&cal), &f.vertices)
                     .into_iter()
                     .zip(obs.iter())
                     .map(|(m, o)| {
@@ -374,8 +374,9 @@ fn json_bytes(v: &impl serde::Serialize) -> Vec<u8> {
 
 /// Writes `mesh_NNNNN.obj`, `params_NNNNN.json` (the rig's generator parameters, for
 /// `generate`, `fit --motion`, `mocap export`), `panoman_params_NNNNN.json` (PanoMan's α, β
-/// and placement; PanoMan only), `marker_map.json` and `report.json` into `dir`, each file
-/// atomically.
+/// and placement; PanoMan only), `marker_map.json`, `pose_placement.json` (the markers'
+/// pose-dependent placements, when the calibration fitted any; a stale one from an earlier
+/// solve is removed otherwise) and `report.json` into `dir`, each file atomically.
 ///
 /// # Errors
 /// [`MocapError::Io`] naming the file.
@@ -434,6 +435,11 @@ pub fn write_solve(dir: &Path, out: &SolveOutput, faces: &[[u32; 3]]) -> Result<
             .collect();
         let p = dir.join("pose_placement.json");
         write_bytes_atomically(&p, &json_bytes(&v)).map_err(io(p.clone()))?;
+    } else {
+        let p = dir.join("pose_placement.json");
+        if p.exists() {
+            std::fs::remove_file(&p).map_err(|source| MocapError::Io { path: p, source })?;
+        }
     }
     let p = dir.join("report.json");
     write_bytes_atomically(&p, &json_bytes(&out.report)).map_err(io(p.clone()))?;

@@ -3,7 +3,10 @@
 use std::path::{Path, PathBuf};
 
 use panoman::Method;
+use panoman_fit::ik::IkState;
+use panoman_human::params::ShapeParams;
 use panoman_mocap::c3d::{C3dWriteOptions, write_c3d};
+use panoman_mocap::marker_map::surface_point;
 use panoman_mocap::marker_map::{default_set_for, default_sets};
 use panoman_mocap::solve::{MarkerSolver, SolveOptions};
 use panoman_mocap::solve_run::{
@@ -139,7 +142,7 @@ fn lbs_solves_the_c3d_excerpt_with_held_out_error() {
     assert!(!pp.is_empty());
     for e in pp {
         let n = e["features"].as_array().unwrap().len();
-        assert!(n >= 6 && n % 3 == 0, "{e}");
+        assert!(n >= 3 && n % 3 == 0, "{e}");
         assert_eq!(e["slopes_m_per_rad"].as_array().unwrap().len(), n);
         assert_eq!(e["mean_rad"].as_array().unwrap().len(), n);
     }
@@ -243,7 +246,7 @@ fn frame_ranges_parse() {
 
 #[test]
 fn marker_patches_are_gaussian_discs_around_the_surface_points() {
-    use panoman_mocap::marker_map::{MarkerMap, PlacedMarker, surface_point};
+    use panoman_mocap::marker_map::{MarkerMap, PlacedMarker};
     use panoman_mocap::solve::marker_patches;
     // A 21 × 21 grid of 1 cm in the plane z = 0, two triangles per cell.
     let n = 21usize;
@@ -326,9 +329,10 @@ fn ridge_fit_recovers_a_linear_placement_and_shrinks_it() {
     assert!(ridge_fit(&[], 0.1).is_none());
 }
 
-/// The pose-dependent placement nests the fixed one (slopes 0), so on the same frames the
-/// calibration residual with it is lower; at the calibration's mean pose a marker sits at
-/// its fixed surface point.
+/// The pose-dependent placement can only follow the markers closer where they slide (slopes
+/// 0 give the fixed placement; the IRLS alternation makes this an expectation, about
+/// 8.4 vs 8.6 mm here, not a theorem); placed for a marker's mean pose it sits at its fixed
+/// surface point, and a pose away from the mean moves it.
 #[test]
 fn pose_dependent_placement_follows_the_markers_closer() {
     let m = model();
@@ -365,12 +369,31 @@ fn pose_dependent_placement_follows_the_markers_closer() {
         posed.mean_residual_mm,
         fixed.mean_residual_mm
     );
-    for (pm, pp) in posed.map.markers.iter().zip(&posed.pose_placement) {
+    let faces = &solver.template().faces;
+    let (pps, rest) = posed.placement().expect("pose-dependent");
+    let mut moved = 0;
+    for (i, pp) in pps.iter().enumerate() {
         let Some(pp) = pp else { continue };
-        let mut angles = vec![[0.0; 3]; solver.bone_names().len()];
+        let name = &posed.map.markers[i].name;
+        let mut st = IkState::rest(solver.bone_names().len(), &ShapeParams::default());
         for (&(b, a), mu) in pp.features.iter().zip(&pp.mean) {
-            angles[b][a] = *mu;
+            st.angles[b][a] = *mu;
         }
-        assert_eq!(pp.rest_point(&angles), pp.at_mean, "{}", pm.name);
+        assert_eq!(pp.rest_point(&st.angles), pp.at_mean, "{name}");
+        let at = |st: &IkState| {
+            let m = &solver.posed_map(&posed.map, pps, rest, st).markers[i];
+            surface_point(faces, rest, m.triangle, m.barycentric)
+        };
+        let p = at(&st);
+        let d = (0..3).map(|c| (p[c] - pp.at_mean[c]).powi(2)).sum::<f64>();
+        assert!(d.sqrt() < 1e-9, "{name}: {p:?} vs {:?}", pp.at_mean);
+        for &(b, a) in &pp.features {
+            st.angles[b][a] += 0.5;
+        }
+        let q = at(&st);
+        if (0..3).map(|c| (q[c] - p[c]).powi(2)).sum::<f64>() > 1e-6 {
+            moved += 1;
+        }
     }
+    assert!(moved > 0);
 }

@@ -65,7 +65,7 @@ pub enum UpArg {
 /// Arguments of `panoman mocap solve`.
 #[derive(Args, Debug)]
 #[command(
-    after_help = "Example:\n  panoman mocap solve --markers nick_freeform_001.c3d --vsk Nick01.vsk --model M.safetensors --frames 0:400:2 --out solve/\n\nWrites mesh_NNNNN.obj, params_NNNNN.json (rig), panoman_params_NNNNN.json (PanoMan), marker_map.json and report.json (residuals, times, held_out_marker_error_mm)."
+    after_help = "Example:\n  panoman mocap solve --markers nick_freeform_001.c3d --vsk Nick01.vsk --model M.safetensors --frames 0:400:2 --out solve/\n\nWrites mesh_NNNNN.obj, params_NNNNN.json (rig), panoman_params_NNNNN.json (PanoMan), marker_map.json, pose_placement.json (how each marker's place moves with the pose) and report.json (residuals, times, held_out_marker_error_mm)."
 )]
 pub struct SolveArgs {
     /// Marker capture (.c3d or .csm).

@@ -265,7 +265,8 @@ fn render_markers(
             .filter(|p| p.iter().all(|c| c.is_finite()))
             .collect();
         let sign = outward_sign(&faces, &out.calibration.rest);
-        let placed = model_markers(&out.calibration.map, &faces, &f.vertices, sign);
+        // The placement the frame was solved with (pose-dependent since 2026-12-06).
+        let placed = model_markers(f.map(&out.calibration), &faces, &f.vertices, sign);
         scene
             .add_mesh(
                 &TriMesh::new(f.vertices.clone(), faces.clone()),
