@@ -481,24 +481,35 @@ pub fn closest_point(faces: &[[u32; 3]], x: &[V3], p: V3, radius: f64) -> (u32, 
             dot(d, d) < r2
         })
     };
-    let mut best = (f64::INFINITY, 0u32, [1.0, 0.0, 0.0]);
-    for pass in 0..2 {
-        for (i, f) in faces.iter().enumerate() {
-            if pass == 0 && !near(f) {
-                continue;
-            }
-            let [a, b, c] = f.map(|k| x[k as usize]);
-            let bc = closest_on_triangle(p, a, b, c);
-            let q = add(add(scale(a, bc[0]), scale(b, bc[1])), scale(c, bc[2]));
-            let d = sub(q, p);
-            let d2 = dot(d, d);
-            if d2 < best.0 {
-                best = (d2, i as u32, bc);
-            }
-        }
-        if best.0.is_finite() {
-            break;
+    let all = 0..faces.len() as u32;
+    closest_point_among(
+        faces,
+        x,
+        p,
+        all.clone().filter(|&t| near(&faces[t as usize])),
+    )
+    .or_else(|| closest_point_among(faces, x, p, all))
+    .unwrap_or((0, [1.0, 0.0, 0.0]))
+}
+
+/// The closest surface point to `p` among the triangles `candidates`:
+/// `(triangle, barycentric)`; `None` when there are none.
+pub fn closest_point_among(
+    faces: &[[u32; 3]],
+    x: &[V3],
+    p: V3,
+    candidates: impl IntoIterator<Item = u32>,
+) -> Option<(u32, V3)> {
+    let mut best: Option<(f64, u32, V3)> = None;
+    for t in candidates {
+        let [a, b, c] = faces[t as usize].map(|k| x[k as usize]);
+        let bc = closest_on_triangle(p, a, b, c);
+        let q = add(add(scale(a, bc[0]), scale(b, bc[1])), scale(c, bc[2]));
+        let d = sub(q, p);
+        let d2 = dot(d, d);
+        if best.is_none_or(|(e, _, _)| d2 < e) {
+            best = Some((d2, t, bc));
         }
     }
-    (best.1, best.2)
+    best.map(|(_, t, bc)| (t, bc))
 }

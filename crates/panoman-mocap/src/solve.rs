@@ -48,7 +48,7 @@ use serde::Serialize;
 
 use crate::error::{MocapError, Result};
 use crate::marker_map::{
-    MarkerMap, RestTemplate, closest_on_triangle, closest_point, surface_normal, surface_point,
+    MarkerMap, RestTemplate, closest_point, closest_point_among, surface_normal, surface_point,
     vertex_normals,
 };
 use crate::markers::MarkerSequence;
@@ -841,18 +841,11 @@ impl MarkerSolver {
         for (mk, p) in m.markers.iter_mut().zip(placement) {
             let Some(p) = p else { continue };
             let r = p.rest_point(&state.angles);
-            let mut best = (f64::INFINITY, mk.triangle, mk.barycentric);
-            for &t in &p.candidates {
-                let [a, b, c] = faces[t as usize].map(|k| rest[k as usize]);
-                let bc = closest_on_triangle(r, a, b, c);
-                let q = add(add(scale(a, bc[0]), scale(b, bc[1])), scale(c, bc[2]));
-                let d = sub(q, r);
-                if dot(d, d) < best.0 {
-                    best = (dot(d, d), t, bc);
-                }
+            if let Some((t, bc)) = closest_point_among(faces, rest, r, p.candidates.iter().copied())
+            {
+                mk.triangle = t;
+                mk.barycentric = bc;
             }
-            mk.triangle = best.1;
-            mk.barycentric = best.2;
         }
         m
     }
