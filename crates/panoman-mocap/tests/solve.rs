@@ -93,6 +93,9 @@ fn lbs_solves_the_c3d_excerpt_with_held_out_error() {
     );
     assert!(h.per_marker.len() >= 50);
     assert!(h.method.contains("5-fold"));
+    // Every 8th of the 40 frames, less those the calibration used (8, spread over the 40).
+    assert!(h.method.contains("every 8-th solved frame"), "{}", h.method);
+    assert!((1..=5).contains(&h.frames), "{}", h.frames);
     assert!(h.mean_inliers.is_finite() && h.observations[1] <= h.observations[0]);
     // The hands' and toes' markers are alone on their bones: unobservable once held out,
     // in `mean_all` but not in `mean`; the torso's are observable.
