@@ -259,6 +259,7 @@ fn bad_input_is_one_line() {
         ("--glitch-m=-0.04", "--glitch-m"),
         ("--glitch-low-m=nan", "--glitch-low-m"),
         ("--pose-placement-ridge=-0.05", "--pose-placement-ridge"),
+        ("--forearm-roll-deg=200", "--forearm-roll-deg"),
     ] {
         one_line_error(
             &panoman(&[

@@ -1009,3 +1009,41 @@ fn temporal_prior_holds_the_previous_pose() {
         .unwrap_err();
     assert!(e.to_string().contains("temporal prior"), "{e}");
 }
+
+/// A forearm roll of 70° (`lowerarm02.L`, elbow bent so the hand's keypoints show it): the
+/// sampler's ±30° holds the bounded solve at its bound; `IkConfig::forearm_roll_deg` = 90
+/// (what marker solving uses) reaches the roll and fits the hand's keypoints.
+#[test]
+fn forearm_roll_range_reaches_a_roll_beyond_the_sampler() {
+    let s = solver();
+    let mut truth = rest_pose();
+    truth.pose.euler_deg[bone("upperarm01.L")] = [20.0, 0.0, -30.0];
+    truth.pose.euler_deg[bone("lowerarm01.L")] = [35.0, 0.0, 0.0];
+    truth.pose.euler_deg[bone("lowerarm02.L")] = [0.0, 70.0, 0.0];
+    let kp = fx().small_set.evaluate(&small_mesh(&truth));
+    let solve = |roll: Option<f64>| {
+        s.solve(
+            &IkTargets::all(&kp).unwrap(),
+            &IkConfig {
+                fit_phenotype: false,
+                initial_shape: Some(truth.shape.clone()),
+                forearm_roll_deg: roll,
+                ..IkConfig::default()
+            },
+        )
+        .unwrap()
+    };
+    let (bounded, rolled) = (solve(None), solve(Some(90.0)));
+    let roll = |r: &panoman_fit::ik::IkResult| r.state.angles[bone("lowerarm02.L")][1].to_degrees();
+    let hand = |r: &panoman_fit::ik::IkResult| r.group_mean(KeypointGroup::LeftHand).unwrap();
+    eprintln!(
+        "roll 70°: ±30° {:.1}° (hand {:.2} mm), ±90° {:.1}° (hand {:.3} mm)",
+        roll(&bounded),
+        hand(&bounded),
+        roll(&rolled),
+        hand(&rolled)
+    );
+    assert!(roll(&bounded) <= 30.0 + 1e-9, "{}", roll(&bounded));
+    assert!((roll(&rolled) - 70.0).abs() < 5.0, "{}", roll(&rolled));
+    assert!(hand(&rolled) < 0.5 && hand(&rolled) * 4.0 < hand(&bounded));
+}

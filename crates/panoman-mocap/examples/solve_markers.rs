@@ -4,7 +4,7 @@
 //!
 //! Environment overrides for experiments (unset: the library's defaults): `VSK`, `ROUNDS`,
 //! `PRIOR`, `FOLDS`, `POSE_PRIOR`, `TEMPORAL_PRIOR`, `PATCH_SIGMA`, `PATCH_WEIGHT`, `ITERS`, `STEP`, `RECAL`, `LAMBDA`, `CAL_FRAMES`, `SIGMA`,
-//! `TRACK_ROUNDS`, `GLITCH`, `GLITCH_LOW`, `POSE_RIDGE`, and of the warm shell fit `CORRECTION`, `TEMPORAL`, `HANDLE`,
+//! `TRACK_ROUNDS`, `GLITCH`, `GLITCH_LOW`, `POSE_RIDGE`, `ROLL`, and of the warm shell fit `CORRECTION`, `TEMPORAL`, `HANDLE`,
 //! `MU` (μ₀), `STEPS` (LM iterations per V-step), `CB` (bending weight).
 use std::path::PathBuf;
 
@@ -53,6 +53,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             glitch_m: env("GLITCH", d.glitch_m),
             glitch_low_m: env("GLITCH_LOW", d.glitch_low_m),
             pose_placement_ridge: env("POSE_RIDGE", d.pose_placement_ridge),
+            forearm_roll_deg: env("ROLL", d.forearm_roll_deg),
             warm_fit: panoman_fit::FitOptions {
                 correction: env("CORRECTION", f64::from(u8::from(warm.correction))) > 0.0,
                 temporal_vertex_weight: env("TEMPORAL", warm.temporal_vertex_weight),

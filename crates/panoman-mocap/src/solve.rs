@@ -136,6 +136,11 @@ pub struct SolveOptions {
     /// calibrated on the first half and evaluated on the second (LBS): nick 11.43 → 11.00,
     /// Thomas 13.44 → 12.30 mm (docs/design/mocap.md "Markers slide with the pose").
     pub pose_placement_ridge: f64,
+    /// The forearm's roll range of the rig's IK, ±degrees ([`IkConfig::forearm_roll_deg`]);
+    /// 0: the sampler's ±30°. Default 90, the forearm's own range (pronation and
+    /// supination): with ±30° Thomas' fencing arm sits on the bound while its wrist bar
+    /// rolls further (docs/design/mocap.md "The forearm rolls ±90°").
+    pub forearm_roll_deg: f64,
     /// PanoMan's shell-fit options of a warm-started tracking frame (the first frame uses
     /// `FitOptions::default()`). Default [`panoman_fit::fit::warm_fit_options`].
     pub warm_fit: FitOptions,
@@ -163,6 +168,7 @@ impl Default for SolveOptions {
             glitch_m: 0.04,
             glitch_low_m: 0.02,
             pose_placement_ridge: 0.05,
+            forearm_roll_deg: 90.0,
             warm_fit: panoman_fit::fit::warm_fit_options(),
         }
     }
@@ -517,6 +523,12 @@ impl MarkerSolver {
                 return Err(inv(format!("{name} = {v} must be finite and ≥ 0")));
             }
         }
+        let roll = options.forearm_roll_deg;
+        if !(roll.is_finite() && (0.0..=180.0).contains(&roll)) {
+            return Err(inv(format!(
+                "forearm_roll_deg (--forearm-roll-deg) = {roll} must be in [0, 180]"
+            )));
+        }
         let rig = panoman_fit::Rig::for_model(model.inner(), || {
             Err(panoman_fit::FitError::Invalid(
                 "the model file has no embedded LBS rig (run `panoman embed-rig`)".into(),
@@ -665,6 +677,8 @@ impl MarkerSolver {
                 pose_prior: self.options.pose_prior,
                 temporal: temporal.clone(),
                 initial_state: Some(state.clone()),
+                forearm_roll_deg: (self.options.forearm_roll_deg > 0.0)
+                    .then_some(self.options.forearm_roll_deg),
                 ..IkConfig::default()
             };
             let r = self.ik.solve_with_points(&kp, &points, &cfg).map_err(inv)?;

@@ -117,6 +117,10 @@ pub struct SolveArgs {
     /// (default: `SolveOptions`, 0.05; 0: one fixed surface point per marker).
     #[arg(long)]
     pub pose_placement_ridge: Option<f64>,
+    /// The forearm's roll range of the IK, ±degrees (default: `SolveOptions`, 90, the
+    /// forearm's pronation and supination; 0: the model sampler's ±30°).
+    #[arg(long)]
+    pub forearm_roll_deg: Option<f64>,
     /// Weight λ_T (m²) of the tracking's temporal prior on the rig's bone angles (toward the
     /// previous frame's; default: `SolveOptions`, 3e-4; 0: none): less jitter, a little lag.
     #[arg(long)]
@@ -259,6 +263,7 @@ fn run_solve(a: SolveArgs) -> Result<()> {
             glitch_m: a.glitch_m.unwrap_or(d.glitch_m),
             glitch_low_m: a.glitch_low_m.unwrap_or(d.glitch_low_m),
             pose_placement_ridge: a.pose_placement_ridge.unwrap_or(d.pose_placement_ridge),
+            forearm_roll_deg: a.forearm_roll_deg.unwrap_or(d.forearm_roll_deg),
             temporal_prior: a.temporal_prior.unwrap_or(d.temporal_prior),
             patch_sigma_m: a.patch_sigma.unwrap_or(d.patch_sigma_m),
             held_out_recalibrate: a.held_out_recalibrate,

@@ -214,6 +214,9 @@ pub(super) struct Posable {
     /// Per axis, the range (radians) and prior factor under [`super::IkConfig::wide_ranges`]
     /// ([`ik_wide_range`]); `None` where the sampler's range stands.
     pub(super) wide: [Option<([f64; 2], f64)>; 3],
+    /// The forearm's roll bone (`lowerarm02.L/R`, axis y), whose range
+    /// [`super::IkConfig::forearm_roll_deg`] sets.
+    pub(super) roll: bool,
 }
 
 impl Posable {
@@ -221,10 +224,16 @@ impl Posable {
     /// [`super::IkConfig::wide_ranges`] where the axis has one, else the sampler's; under
     /// [`super::IkConfig::full_extension`] the lower flexion bound of an elbow or a knee then
     /// moves down to the full extension ([`ik_extension_limit`]). The prior factor is the
-    /// range's own either way (the extension leaves `max(|lo|, |hi|)` unchanged).
+    /// range's own either way (the extension leaves `max(|lo|, |hi|)` unchanged). Without
+    /// the wide ranges, [`super::IkConfig::forearm_roll_deg`] `L` makes the forearm's roll
+    /// `±L` with prior factor `1/L²`.
     pub(super) fn axis(&self, axis: usize, cfg: &super::IkConfig) -> ([f64; 2], f64) {
-        let (mut range, prior) = match self.wide[axis] {
-            Some(w) if cfg.wide_ranges => w,
+        let (mut range, prior) = match (self.wide[axis], cfg.forearm_roll_deg) {
+            (Some(w), _) if cfg.wide_ranges => w,
+            (_, Some(l)) if self.roll && axis == 1 => {
+                let l = l.to_radians();
+                ([-l, l], 1.0 / (l * l))
+            }
             _ => (self.range[axis], self.prior[axis]),
         };
         if let Some(lo) = self.extension.filter(|_| axis == 0 && cfg.full_extension) {
@@ -712,6 +721,7 @@ pub(super) fn posable_of(rig: &panoman_human::rig::Rig) -> Result<Vec<Posable>> 
                 prior,
                 extension,
                 wide,
+                roll: matches!(name.as_str(), "lowerarm02.L" | "lowerarm02.R"),
             })
         })
         .collect::<Result<Vec<_>>>()

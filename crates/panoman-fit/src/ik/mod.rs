@@ -202,6 +202,14 @@ pub struct IkConfig {
     /// [`crate::pipeline::ik_fit`], and the frames after it must not be held inside the
     /// sampler's range.
     pub full_extension: bool,
+    /// The forearm's roll range (`lowerarm02.L/R` about its own axis): `±L` degrees with the
+    /// prior scale `L`, instead of the sampler's ±30°
+    /// ([`panoman_human::sampling::TWIST_LIMIT_DEG`], chosen for the training data, where the
+    /// skinned forearm starts to collapse beyond it). A forearm rolls about ±90° (pronation
+    /// and supination); marker solving uses `Some(90.0)`, where the wrist markers observe
+    /// the roll (`panoman_mocap::solve::SolveOptions::forearm_roll_deg`). The wide ranges
+    /// take precedence. `None` (default): the sampler's.
+    pub forearm_roll_deg: Option<f64>,
 }
 
 impl Default for IkConfig {
@@ -225,6 +233,7 @@ impl Default for IkConfig {
             initial_state: None,
             wide_ranges: false,
             full_extension: false,
+            forearm_roll_deg: None,
         }
     }
 }
