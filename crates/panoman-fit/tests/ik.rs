@@ -585,6 +585,16 @@ fn surface_points_recover_the_mesh_better_than_keypoints() {
     }
 }
 
+/// The rest pose with the left arm raised forward, the elbow bent by 35° (so that the hand's
+/// keypoints show the forearm's roll) and the forearm (`lowerarm02.L`) rolled by `roll_deg`.
+fn left_forearm_rolled(roll_deg: f64) -> GeneratorParams {
+    let mut truth = rest_pose();
+    truth.pose.euler_deg[bone("upperarm01.L")] = [20.0, 0.0, -30.0];
+    truth.pose.euler_deg[bone("lowerarm01.L")] = [35.0, 0.0, 0.0];
+    truth.pose.euler_deg[bone("lowerarm02.L")] = [0.0, roll_deg, 0.0];
+    truth
+}
+
 /// A forearm twist far beyond the sampler's ±30° (150° on `lowerarm02.L`, elbow bent so the
 /// hand's keypoints show the roll): the bounded solve misses the left hand's keypoints; the
 /// pipeline's wide-twist continuation ([`panoman_fit::ik_fit`]) turns the forearm bone to the
@@ -593,10 +603,7 @@ fn surface_points_recover_the_mesh_better_than_keypoints() {
 fn a_forearm_twist_beyond_the_sampler_is_reached_by_the_continuation() {
     use panoman_human::keypoints::KeypointsFile;
     let s = solver();
-    let mut truth = rest_pose();
-    truth.pose.euler_deg[bone("upperarm01.L")] = [20.0, 0.0, -30.0];
-    truth.pose.euler_deg[bone("lowerarm01.L")] = [35.0, 0.0, 0.0];
-    truth.pose.euler_deg[bone("lowerarm02.L")] = [0.0, 150.0, 0.0];
+    let truth = left_forearm_rolled(150.0);
     let mesh = small_mesh(&truth);
     let kp = fx().small_set.evaluate(&mesh);
     let config = IkConfig {
@@ -1016,10 +1023,7 @@ fn temporal_prior_holds_the_previous_pose() {
 #[test]
 fn forearm_roll_range_reaches_a_roll_beyond_the_sampler() {
     let s = solver();
-    let mut truth = rest_pose();
-    truth.pose.euler_deg[bone("upperarm01.L")] = [20.0, 0.0, -30.0];
-    truth.pose.euler_deg[bone("lowerarm01.L")] = [35.0, 0.0, 0.0];
-    truth.pose.euler_deg[bone("lowerarm02.L")] = [0.0, 70.0, 0.0];
+    let truth = left_forearm_rolled(70.0);
     let kp = fx().small_set.evaluate(&small_mesh(&truth));
     let solve = |roll: Option<f64>| {
         s.solve(
