@@ -1050,4 +1050,17 @@ fn forearm_roll_range_reaches_a_roll_beyond_the_sampler() {
     assert!(roll(&bounded) <= 30.0 + 1e-9, "{}", roll(&bounded));
     assert!((roll(&rolled) - 70.0).abs() < 5.0, "{}", roll(&rolled));
     assert!(hand(&rolled) < 0.5 && hand(&rolled) * 4.0 < hand(&bounded));
+    // A range that is empty, beyond a half turn or not a number is refused.
+    for bad in [0.0, -10.0, 181.0, f64::NAN] {
+        let e = s
+            .solve(
+                &IkTargets::all(&kp).unwrap(),
+                &IkConfig {
+                    forearm_roll_deg: Some(bad),
+                    ..IkConfig::default()
+                },
+            )
+            .unwrap_err();
+        assert!(e.to_string().contains("forearm roll"), "{bad}: {e}");
+    }
 }

@@ -593,7 +593,7 @@ impl IkSolver {
     ///
     /// # Errors
     /// [`FitError::Invalid`] for a warm start of the wrong size or with a non-finite global
-    /// motion.
+    /// motion, a malformed temporal prior, or a forearm roll range outside (0°, 180°].
     fn initial_state(
         &self,
         config: &IkConfig,
@@ -610,6 +610,13 @@ impl IkSolver {
                 "IK temporal prior: {} reference bone angles and {} weights (expected {n_bones} each) or non-finite angles",
                 t.angles.len(),
                 t.weights.len()
+            )));
+        }
+        if let Some(l) = config.forearm_roll_deg
+            && !(l.is_finite() && l > 0.0 && l <= 180.0)
+        {
+            return Err(FitError::Invalid(format!(
+                "IK forearm roll range ±{l}° (must be in (0, 180])"
             )));
         }
         let warm = config.initial_state.is_some();
