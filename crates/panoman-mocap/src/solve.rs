@@ -11,7 +11,8 @@
 //!   half of the rounds on, each marker's surface point also moves with the pose
 //!   ([`PosePlacement`]: linear in the angles of the bones around it, fitted by ridge
 //!   regression on the calibration frames; `pose_placement_ridge`). PanoMan's α is the
-//!   shape-PCA projection of the calibrated rest mesh.
+//!   shape-PCA projection of the calibrated rest mesh. In calibration and tracking the IK
+//!   bounds the forearm's roll by ±`forearm_roll_deg` (90°, the sampler's ±30° elsewhere).
 //! * **Tracking** ([`MarkerSolver::track`]): every frame the markers are surface-point
 //!   targets `observed − offset·n̂` (n̂ the current normal at the marker's surface point,
 //!   the surface point placed for the IK round's starting pose),
