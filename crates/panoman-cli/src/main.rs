@@ -51,7 +51,7 @@ enum Command {
     Encode(commands::encode::EncodeArgs),
     /// Synthesize the training data H (rest, body poses, expressions, hand gestures).
     Synth(commands::synth::SynthArgs),
-    /// TC-127 keypoints (body, face, hands) of a mesh in template topology, as JSON.
+    /// TC-133 keypoints (body, feet, face, hands) of a mesh in template topology, as JSON.
     Keypoints(commands::keypoints::KeypointsArgs),
     /// Fit PanoMan (or the LBS baseline) to keypoints, a point cloud, handles.
     Fit(commands::fit::FitArgs),

@@ -1,13 +1,18 @@
 //! Interchange with a trained model: a 72-frame clip tracked by `panoman track` exports as one
-//! animated .glb that passes the Khronos glTF-Validator, and the same targets given as TC-127,
-//! OpenPose and CMU Panoptic JSON give the same `panoman fit` (to 1e-9 m).
+//! animated .glb that passes the Khronos glTF-Validator; the same targets given as TC-133,
+//! OpenPose and CMU Panoptic JSON give the same `panoman fit` (to 1e-9 m), and so do a TC-127
+//! file and OpenPose without the feet.
 
 mod common;
 
 use common::{ok, small_model};
 use panoman::{Generator, KeypointsFile, Model};
-use panoman_human::keypoints::{FACE_OFFSET, LHAND_OFFSET, N_BODY, N_FACE, N_HAND, RHAND_OFFSET};
-use panoman_interchange::keypoints_in::{OPENPOSE_BODY25_TO_TC127, PANOPTIC_COCO19_TO_TC127};
+use panoman_human::keypoints::{
+    FACE_OFFSET, FEET_OFFSET, LHAND_OFFSET, N_BODY, N_FACE, N_FEET, N_HAND, RHAND_OFFSET,
+};
+use panoman_interchange::keypoints_in::{
+    OPENPOSE_BODY25_FEET, OPENPOSE_BODY25_TO_TC133, PANOPTIC_COCO19_TO_TC133,
+};
 use serde_json::json;
 use std::path::Path;
 
@@ -114,8 +119,27 @@ fn xyzc_cm(points: &[[f64; 3]], idx: impl Iterator<Item = usize>) -> Vec<f64> {
     .collect()
 }
 
+/// OpenPose BODY_25 (cm) of TC-133 keypoints `k`, the foot points with confidence `feet`.
+fn openpose_doc(k: &[[f64; 3]], feet: f64) -> serde_json::Value {
+    let mut pose = vec![0.0; 100];
+    for (t, &src) in OPENPOSE_BODY25_TO_TC133.iter().enumerate() {
+        pose[4 * src..4 * src + 4].copy_from_slice(&xyzc_cm(k, t..t + 1));
+    }
+    for (i, &src) in OPENPOSE_BODY25_FEET.iter().enumerate() {
+        let t = FEET_OFFSET + i;
+        pose[4 * src..4 * src + 4].copy_from_slice(&xyzc_cm(k, t..t + 1));
+        pose[4 * src + 3] = feet;
+    }
+    json!({"version": 1.3, "people": [{
+        "pose_keypoints_3d": pose,
+        "face_keypoints_3d": xyzc_cm(k, FACE_OFFSET..FACE_OFFSET + N_FACE),
+        "hand_left_keypoints_3d": xyzc_cm(k, LHAND_OFFSET..LHAND_OFFSET + N_HAND),
+        "hand_right_keypoints_3d": xyzc_cm(k, RHAND_OFFSET..RHAND_OFFSET + N_HAND),
+    }]})
+}
+
 #[test]
-fn tc127_openpose_and_panoptic_targets_give_the_same_fit() {
+fn tc133_tc127_openpose_and_panoptic_targets_give_the_same_fit() {
     let (dir, _data, model_path) = small_model("interchange-fit-formats", 8);
     let model = Model::load(&model_path).unwrap();
     let g = Generator::from_model(&model).unwrap();
@@ -126,33 +150,32 @@ fn tc127_openpose_and_panoptic_targets_give_the_same_fit() {
         std::fs::write(&p, v.to_string()).unwrap();
         p
     };
-    // TC-127: all 127, and the body alone.
-    let all = dir.join("tc127.json");
+    // TC-133: all 133, and the body alone.
+    let all = dir.join("tc133.json");
     KeypointsFile::from_all(&k).write(&all).unwrap();
     let mut body = KeypointsFile::default();
     for (t, p) in k.iter().enumerate().take(N_BODY) {
         body.points.insert(t, *p);
     }
-    let body_path = dir.join("tc127_body.json");
+    let body_path = dir.join("tc133_body.json");
     body.write(&body_path).unwrap();
-    // OpenPose BODY_25 + face + hands (cm); the 10 BODY_25 points without a TC-127
-    // counterpart get confidence 0.
-    let mut pose = vec![0.0; 100];
-    for (t, &src) in OPENPOSE_BODY25_TO_TC127.iter().enumerate() {
-        pose[4 * src..4 * src + 4].copy_from_slice(&xyzc_cm(&k, t..t + 1));
-    }
-    let openpose = write(
-        "openpose.json",
-        &json!({"version": 1.3, "people": [{
-            "pose_keypoints_3d": pose,
-            "face_keypoints_3d": xyzc_cm(&k, FACE_OFFSET..FACE_OFFSET + N_FACE),
-            "hand_left_keypoints_3d": xyzc_cm(&k, LHAND_OFFSET..LHAND_OFFSET + N_HAND),
-            "hand_right_keypoints_3d": xyzc_cm(&k, RHAND_OFFSET..RHAND_OFFSET + N_HAND),
-        }]}),
-    );
+    // An old TC-127 file: every keypoint but the feet, as files of that layout were written.
+    let mut old = KeypointsFile::from_all(&k);
+    old.points
+        .retain(|i, _| !(FEET_OFFSET..FEET_OFFSET + N_FEET).contains(i));
+    old.weights
+        .retain(|i, _| !(FEET_OFFSET..FEET_OFFSET + N_FEET).contains(i));
+    let old_text = old.to_json().unwrap();
+    assert!(!old_text.contains("heel") && old_text.contains("r_ankle"));
+    let old_path = dir.join("tc127.json");
+    std::fs::write(&old_path, old_text).unwrap();
+    // OpenPose BODY_25 + face + hands (cm), with and without the foot points; the 4 BODY_25
+    // points without a TC-133 counterpart (eyes, ears) get confidence 0.
+    let openpose = write("openpose.json", &openpose_doc(&k, 1.0));
+    let openpose_no_feet = write("openpose_no_feet.json", &openpose_doc(&k, 0.0));
     // Panoptic hdPose3d_stage1_coco19 (cm): the body (a fit reads one file per frame).
     let mut j19 = vec![0.0; 19 * 4];
-    for (t, &src) in PANOPTIC_COCO19_TO_TC127.iter().enumerate() {
+    for (t, &src) in PANOPTIC_COCO19_TO_TC133.iter().enumerate() {
         j19[4 * src..4 * src + 4].copy_from_slice(&xyzc_cm(&k, t..t + 1));
     }
     let panoptic = write(
@@ -180,14 +203,24 @@ fn tc127_openpose_and_panoptic_targets_give_the_same_fit() {
             .flat_map(|(p, q)| (0..3).map(move |c| (p[c] - q[c]).abs()))
             .fold(0.0f64, f64::max)
     };
-    let tc = fit(&all, "tc127", "fit_tc127");
+    let tc = fit(&all, "panoman", "fit_tc133");
     let op = fit(&openpose, "openpose", "fit_openpose");
     assert!(
         max_diff(&tc, &op) <= 1e-9,
         "OpenPose fit differs by {}",
         max_diff(&tc, &op)
     );
-    let tcb = fit(&body_path, "tc127", "fit_tc127_body");
+    // TC-127 files still fit, as OpenPose files without the feet do.
+    let old = fit(&old_path, "tc127", "fit_tc127");
+    let op_old = fit(&openpose_no_feet, "openpose", "fit_openpose_no_feet");
+    assert!(
+        max_diff(&old, &op_old) <= 1e-9,
+        "OpenPose without feet differs from TC-127 by {}",
+        max_diff(&old, &op_old)
+    );
+    // The foot keypoints are targets: the TC-127 fit is another fit.
+    assert!(max_diff(&tc, &old) > 1e-6);
+    let tcb = fit(&body_path, "panoman", "fit_tc133_body");
     let pb = fit(&panoptic, "panoptic", "fit_panoptic_body");
     assert!(
         max_diff(&tcb, &pb) <= 1e-9,
@@ -201,7 +234,7 @@ fn tc127_openpose_and_panoptic_targets_give_the_same_fit() {
     ok(common::panoman(&[
         "export",
         "--params",
-        &s(&dir.join("fit_tc127/params.json")),
+        &s(&dir.join("fit_tc133/params.json")),
         "--model",
         &s(&model_path),
         "--out",
@@ -210,10 +243,10 @@ fn tc127_openpose_and_panoptic_targets_give_the_same_fit() {
     validate(&glb);
 }
 
-/// OpenPose BODY_25's foot points reach the fit: a person with both feet flexed (30° and 25°
-/// toes down, which TC-127 cannot see) fitted by `panoman fit --baseline lbs` from the same
-/// OpenPose keypoints with the six foot points given (on the model's `foot_points`) and with
-/// them at confidence 0: with them the IK reports its handle stage and the feet land.
+/// OpenPose BODY_25's foot points are keypoint targets: a person with both feet flexed (30°
+/// and 25° toes down, which TC-127 cannot see) fitted by `panoman fit --baseline lbs` (the
+/// IK alone) from the same OpenPose keypoints with the six foot points given and at
+/// confidence 0: with them the feet land.
 #[test]
 fn openpose_foot_points_place_the_feet() {
     let (dir, _data, model_path) = small_model("interchange-fit-feet", 9);
@@ -229,32 +262,10 @@ fn openpose_foot_points_place_the_feet() {
         .generate(&params, model.output_topology().unwrap())
         .unwrap();
     let k = model.keypoints(&truth).unwrap();
-    let feet = model.foot_points().unwrap();
-    let cm = |p: [f64; 3], c: f64| [p[0] * 100.0, p[1] * 100.0, p[2] * 100.0, c];
-    let doc = |c: f64| {
-        let mut pose = vec![0.0; 100];
-        for (t, &src) in OPENPOSE_BODY25_TO_TC127.iter().enumerate() {
-            pose[4 * src..4 * src + 4].copy_from_slice(&cm(k[t], 1.0));
-        }
-        for (i, &src) in panoman_interchange::keypoints_in::OPENPOSE_BODY25_FEET
-            .iter()
-            .enumerate()
-        {
-            pose[4 * src..4 * src + 4].copy_from_slice(&cm(truth[feet[i] as usize], c));
-        }
-        let part =
-            |o: usize, n: usize| -> Vec<f64> { (o..o + n).flat_map(|t| cm(k[t], 1.0)).collect() };
-        json!({"version": 1.3, "people": [{
-            "pose_keypoints_3d": pose,
-            "face_keypoints_3d": part(FACE_OFFSET, N_FACE),
-            "hand_left_keypoints_3d": part(LHAND_OFFSET, N_HAND),
-            "hand_right_keypoints_3d": part(RHAND_OFFSET, N_HAND),
-        }]})
-    };
     let s = |p: &Path| p.to_str().unwrap().to_string();
     let fit = |c: f64, name: &str| {
         let kp = dir.join(format!("{name}.json"));
-        std::fs::write(&kp, doc(c).to_string()).unwrap();
+        std::fs::write(&kp, openpose_doc(&k, c).to_string()).unwrap();
         let out = dir.join(name);
         ok(common::panoman(&[
             "fit",
@@ -270,27 +281,26 @@ fn openpose_foot_points_place_the_feet() {
         let report = std::fs::read_to_string(out.join("report.json")).unwrap();
         (read_obj(&out.join("mesh.obj")), report)
     };
+    // Mean distance of the fit's foot keypoints to the truth's, metres.
     let foot_err = |m: &[[f64; 3]]| {
-        feet.iter()
-            .map(|&v| {
-                let (a, b) = (m[v as usize], truth[v as usize]);
+        let f = model.keypoints(m).unwrap();
+        (FEET_OFFSET..FEET_OFFSET + N_FEET)
+            .map(|t| {
+                let (a, b) = (f[t], k[t]);
                 ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
             })
             .sum::<f64>()
-            / 6.0
+            / N_FEET as f64
     };
     let (without, r0) = fit(0.0, "no_feet");
     let (with, r1) = fit(1.0, "feet");
     let (e0, e1) = (foot_err(&without), foot_err(&with));
     eprintln!(
-        "foot points {:.1} mm without, {:.1} mm with",
+        "foot keypoints {:.1} mm without, {:.1} mm with",
         1e3 * e0,
         1e3 * e1
     );
-    assert!(
-        !r0.contains("\"handles\"") && r1.contains("\"handles\""),
-        "{r1}"
-    );
+    assert!(!r0.contains("\"feet\"") && r1.contains("\"feet\""), "{r1}");
     assert!(e0 > 0.02, "TC-127 alone placed the flexed feet: {e0} m");
     assert!(e1 < 0.005 && e1 * 5.0 < e0, "{e0} → {e1} m");
 }

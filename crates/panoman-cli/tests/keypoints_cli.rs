@@ -1,4 +1,4 @@
-//! `panoman keypoints` end to end (the real binary): the 127 keypoints of the full and small
+//! `panoman keypoints` end to end (the real binary): the 133 keypoints of the full and small
 //! templates, equal to the library's definitions, and one-line errors naming the file for a
 //! mesh with the wrong vertex count or a missing file.
 

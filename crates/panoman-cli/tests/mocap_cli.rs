@@ -198,20 +198,22 @@ fn retarget_writes_params_and_summary() {
     let mean = s["joint_error_mm"]["mean"].as_f64().unwrap();
     assert!(mean > 0.0 && mean < 25.0, "{mean}");
     assert!(d.join("params_00000.json").is_file());
-    // Tracked from keypoints and foot points after a shape calibration from two frames.
+    // Tracked from the TC-133 keypoints (feet included) after a shape calibration from two
+    // frames.
     let t = d.join("track");
     let track = [
         "--shape-frames",
         "0",
         "--track",
         "0::10",
-        "--feet",
         "--calibrate-shape",
         "2",
     ];
     retarget(&t, &track);
     let tr: serde_json::Value =
         serde_json::from_slice(&std::fs::read(t.join("track.json")).unwrap()).unwrap();
+    assert_eq!(tr["layout"], "TC-133");
+    assert_eq!(tr["targets"], "TC-133 keypoints");
     let c = &tr["shape_calibration"];
     assert_eq!(c["frames"].as_array().unwrap().len(), 2);
     assert_eq!(c["knobs"].as_array().unwrap().len(), 9);
@@ -353,7 +355,7 @@ fn eval_reports_both_methods_on_every_capture() {
         }
         assert!(out.join(format!("markers_{c}.png")).is_file());
     }
-    for k in ["tc127", "tc127_contacts", "tc127_feet"] {
+    for k in ["tc127", "tc127_contacts", "tc133"] {
         let t = &s["cmu_01_01"][k];
         assert!(t["panoman"]["mean_mm"].as_f64().unwrap().is_finite(), "{k}");
         assert_eq!(

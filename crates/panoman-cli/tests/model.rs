@@ -55,7 +55,7 @@ fn small_model_trains_poses_and_encodes() {
     assert_eq!(model.blocks.len(), 6);
     assert!(model.correction.is_some() && model.motion.is_some());
     // The TC-127 keypoints travel with the model and evaluate on its meshes.
-    assert_eq!(model.keypoints.names.len(), 127);
+    assert_eq!(model.keypoints.names.len(), 133);
     assert_eq!(model.keypoints.names[0], "neck");
     assert!(model.keypoints.rows.iter().all(|r| !r.is_empty()));
     let report: serde_json::Value = serde_json::from_str(
@@ -84,7 +84,7 @@ fn small_model_trains_poses_and_encodes() {
     // Keypoints evaluate on posed meshes: each is an affine combination, so it lies inside
     // the bounding box of the mesh.
     let kp = model.keypoints.evaluate(&zero);
-    assert_eq!(kp.len(), 127);
+    assert_eq!(kp.len(), 133);
     for c in 0..3 {
         let lo = zero.iter().map(|p| p[c]).fold(f64::INFINITY, f64::min);
         let hi = zero.iter().map(|p| p[c]).fold(f64::NEG_INFINITY, f64::max);

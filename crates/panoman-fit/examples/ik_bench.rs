@@ -1,5 +1,5 @@
 //! IK benchmark: generates held-out-like people (seeded identity, body pose, hand gestures,
-//! facial expression, global rotation and translation), computes their exact TC-127 keypoints,
+//! facial expression, global rotation and translation), computes their exact TC-133 keypoints,
 //! fits the rig to them with [`panoman_fit::ik::IkSolver`] from a cold start and prints the
 //! time per fit, the keypoint residuals and the per-vertex error of the fitted posed mesh
 //! against the truth per part (body / face / left hand / right hand).

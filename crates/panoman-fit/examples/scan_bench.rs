@@ -6,7 +6,7 @@
 //!
 //! Per held-out body row (kind 1, identity in `held_out`, evenly spread): 5,000 area-uniform
 //! surface points with 2 mm Gaussian noise, the 30 % with the largest y (the back) dropped,
-//! and the TC-127 keypoints of the true mesh (exact, or with `kpnoise=σ` Gaussian noise and
+//! and the TC-133 keypoints of the true mesh (exact, or with `kpnoise=σ` Gaussian noise and
 //! `ik_config_for_noise(σ)`). Prints the mean per-vertex error (mm) of
 //!
 //! * `lbs`: the keypoint IK;

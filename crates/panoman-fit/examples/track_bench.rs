@@ -5,7 +5,7 @@
 //! ```
 //!
 //! Generates a held-out motion clip ([`panoman_human::clip`], 4 keyframes, body + expressions +
-//! gestures on a random identity), tracks it from the exact TC-127 keypoints of every frame with
+//! gestures on a random identity), tracks it from the exact TC-133 keypoints of every frame with
 //! [`Sequence`] (cold first frame, warm-started frames after it), and prints the median, min and
 //! max time per stage over the warm frames, and the mean per-vertex error (mm) of PanoMan and of
 //! the warm-started LBS rig (IK alone) against the truth.

@@ -253,7 +253,7 @@ pub struct LevelPair {
 /// The constraint set of one fit.
 #[derive(Clone, Debug, Default)]
 pub struct Constraints {
-    /// Target keypoints (any subset of TC-127, with weights).
+    /// Target keypoints (any subset of TC-133, with weights).
     pub keypoints: KeypointsFile,
     /// Vertex handles.
     pub handles: Vec<VertexHandle>,
@@ -1161,7 +1161,7 @@ pub fn keypoint_residuals(
     }))
 }
 
-/// Mean and max per keypoint group of `(TC-127 index, distance in mm)` pairs.
+/// Mean and max per keypoint group of `(TC-133 index, distance in mm)` pairs.
 pub fn group_residuals(
     distances: impl Iterator<Item = (usize, f64)>,
 ) -> std::collections::BTreeMap<String, GroupResidual> {

@@ -25,7 +25,7 @@ use rayon::prelude::*;
 use std::sync::Arc;
 
 /// The LBS rig on a model's template topology: the generator, its map onto the template, and
-/// the TC-127 keypoint rows of that topology. Loaded once per session.
+/// the TC-133 keypoint rows of that topology. Loaded once per session.
 pub struct Rig {
     /// The Anny-equivalent generator.
     pub generator: Arc<Generator>,

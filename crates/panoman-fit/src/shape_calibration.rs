@@ -388,7 +388,7 @@ fn mean_phenotype(solved: &[IkResult]) -> [f64; 6] {
     m
 }
 
-/// Keypoint pairs whose distance is a segment length of the skeleton (TC-127 body names):
+/// Keypoint pairs whose distance is a segment length of the skeleton (TC-133 body names):
 /// upper arms, forearms, thighs, shanks, shoulder and hip width, the torso (neck to body
 /// centre, shoulder to hip) and the pelvis (body centre to hip). A pose moves them only by
 /// the skin's deformation near the joints, so their distances measure the lengths whatever
@@ -411,7 +411,7 @@ pub const SEGMENTS: [(&str, &str); 15] = [
     ("body_center", "r_hip"),
 ];
 
-/// One end of a segment: a keypoint (TC-127 index) or a vertex handle's vertex.
+/// One end of a segment: a keypoint (TC-133 index) or a vertex handle's vertex.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum End {
     Keypoint(usize),

@@ -239,7 +239,7 @@ fn vertex_errors(fit: &[[f64; 3]], truth: &[[f64; 3]]) -> ([f64; 4], f64) {
 /// rotation and translation; no expression) on the small topology, fitted from a cold start.
 ///
 /// Bounds: the rig is the generator, so the keypoints can be matched exactly; what keeps the
-/// fit from being exact is identifiability. Weight, muscle and proportions move the 127
+/// fit from being exact is identifiability. Weight, muscle and proportions move the 133
 /// keypoints by only ~1–3 mm over their whole range beyond what the pose absorbs, and several
 /// pose directions leave the keypoints (almost) unchanged: the split of a twist between
 /// `upperarm01`/`upperarm02` (and the forearm bones), the foot angles (no toe keypoints),
@@ -262,7 +262,7 @@ fn recovers_generated_people_from_exact_keypoints() {
         let r = s.solve(&targets, &IkConfig::default()).unwrap();
         assert_eq!(r.posed.len(), mesh.len());
         assert_eq!(r.rest.len(), mesh.len());
-        assert_eq!(r.residuals.len(), 127);
+        assert_eq!(r.residuals.len(), 133);
         // The returned parameters reproduce the returned mesh through the generator.
         let d = reproduction_error(&r);
         assert!(d < 1e-9, "params do not reproduce the mesh: {d} m");
@@ -345,7 +345,7 @@ fn invalid_targets_are_errors() {
     assert!(t.set(0, [f64::NAN, 0.0, 0.0], 1.0).is_err());
     assert!(t.set(0, [0.0, f64::INFINITY, 0.0], 1.0).is_err());
     assert!(t.set(0, [0.0; 3], -1.0).is_err());
-    assert!(t.set(127, [0.0; 3], 1.0).is_err());
+    assert!(t.set(133, [0.0; 3], 1.0).is_err());
     assert!(t.set_named("elbow", [0.0; 3], 1.0).is_err());
     // Built directly, a NaN target is caught by the solver.
     let nan = IkTargets {
@@ -720,7 +720,7 @@ fn straight_limbs_are_reached_cold_and_kept_warm() {
 }
 
 /// The big toe, small toe (most forward medial / lateral) and heel (rearmost) vertex of each
-/// sole (left, then right) of the small template's rest mesh, as `panoman::foot_points`
+/// sole (left, then right) of the small template's rest mesh, as `panoman::sole_points`
 /// picks them.
 fn rest_foot_points() -> Vec<usize> {
     let rest = small_mesh(&GeneratorParams::default());
@@ -745,6 +745,60 @@ fn rest_foot_points() -> Vec<usize> {
     feet
 }
 
+/// The TC-127 view of a TC-133 keypoint file: the six foot keypoints removed.
+fn without_feet(
+    mut k: panoman_human::keypoints::KeypointsFile,
+) -> panoman_human::keypoints::KeypointsFile {
+    let feet = KeypointGroup::Feet.range();
+    k.points.retain(|i, _| !feet.contains(i));
+    k.weights.retain(|i, _| !feet.contains(i));
+    k
+}
+
+/// The foot keypoints are IK targets like the others: a foot flexed 30° down and turned in
+/// and the other 25° down, fitted cold from the TC-133 keypoints, comes back within 3° of
+/// flexion (the ankle keypoint alone leaves it near rest, > 10° off, as without the feet),
+/// the feet's keypoint residual below 2 mm, and the residuals report the `feet` group.
+#[test]
+fn foot_keypoints_set_the_foot_flexion() {
+    use panoman_human::keypoints::KeypointsFile;
+    let s = solver();
+    let mut truth = rest_pose();
+    truth.pose.euler_deg[bone("foot.L")] = [30.0, 0.0, 10.0];
+    truth.pose.euler_deg[bone("foot.R")] = [25.0, 0.0, -10.0];
+    let mesh = small_mesh(&truth);
+    let all = KeypointsFile::from_all(&fx().small_set.evaluate(&mesh));
+    let fit = |k: KeypointsFile| {
+        let c = panoman_fit::Constraints {
+            keypoints: k,
+            ..Default::default()
+        };
+        panoman_fit::ik_fit(s, &c, &IkConfig::default()).unwrap()
+    };
+    let flexion_err = |r: &panoman_fit::ik::IkResult| {
+        ["foot.L", "foot.R"]
+            .iter()
+            .map(|b| {
+                (r.state.angles[bone(b)][0].to_degrees() - truth.pose.euler_deg[bone(b)][0]).abs()
+            })
+            .fold(0.0, f64::max)
+    };
+    let a = fit(without_feet(all.clone()));
+    let b = fit(all);
+    eprintln!(
+        "feet: flexion from TC-127 {:.1}° off, from TC-133 {:.2}° (feet residual {:?} mm)",
+        flexion_err(&a),
+        flexion_err(&b),
+        b.group_mean(KeypointGroup::Feet)
+    );
+    assert!(a.group_mean(KeypointGroup::Feet).is_none());
+    assert!(flexion_err(&a) > 10.0, "TC-127: {}°", flexion_err(&a));
+    assert!(flexion_err(&b) < 3.0, "TC-133: {}°", flexion_err(&b));
+    assert!(b.group_mean(KeypointGroup::Feet).unwrap() < 2.0);
+    // Targets, not handles: no handle stage.
+    assert!(b.stages.iter().all(|s| s.name != "handles"));
+}
+
 /// Vertex handles reach the IK (`ik_fit`'s handle pass): a foot flexed 30° down and turned
 /// in is invisible to TC-127 (its body stops at the ankles), so the keypoints alone leave the
 /// foot near rest; three vertices of each foot as handles (big toe, small toe, heel; their
@@ -760,7 +814,7 @@ fn foot_handles_place_the_feet() {
     truth.pose.euler_deg[bone("foot.R")] = [25.0, 0.0, -10.0];
     let mesh = small_mesh(&truth);
     let feet = rest_foot_points();
-    let keypoints = KeypointsFile::from_all(&fx().small_set.evaluate(&mesh));
+    let keypoints = without_feet(KeypointsFile::from_all(&fx().small_set.evaluate(&mesh)));
     let only = panoman_fit::Constraints {
         keypoints: keypoints.clone(),
         ..Default::default()
@@ -841,7 +895,7 @@ fn level_pairs_set_the_foot_flexion() {
             });
         }
     }
-    let keypoints = KeypointsFile::from_all(&fx().small_set.evaluate(&mesh));
+    let keypoints = without_feet(KeypointsFile::from_all(&fx().small_set.evaluate(&mesh)));
     let only = panoman_fit::Constraints {
         keypoints,
         ..Default::default()

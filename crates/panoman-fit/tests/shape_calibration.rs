@@ -140,7 +140,7 @@ fn limb_lengths_are_recovered_from_keypoint_frames() {
     );
     // The six phenotype values cannot express these lengths: the IK with the default
     // lengths leaves ~2 mm of mean keypoint error (the body keypoints 5–25 mm; the face and
-    // hand keypoints, most of the 127, fit well either way); calibrated, most of it goes.
+    // hand keypoints, most of the 133, fit well either way); calibrated, most of it goes.
     assert!(cal.before_mm > 1.5, "before: {} mm", cal.before_mm);
     assert!(
         cal.after_mm < 0.4 * cal.before_mm,

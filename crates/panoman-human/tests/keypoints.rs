@@ -1,4 +1,4 @@
-//! TC-127 keypoints: layout (names and order), the definitions built from the assets
+//! TC-133 keypoints: layout (names and order), the definitions built from the assets
 //! (held-out accuracy of the regressors ≤ 3 mm per group, surface points on the right
 //! features, small topology), the cache round trip, and keypoints JSON I/O with its errors.
 
@@ -8,7 +8,8 @@ use std::time::Instant;
 use panoman_human::generator::Generator;
 use panoman_human::keypoints::{
     FitConfig, GroupError, KeypointDefinitions, KeypointGroup, KeypointKind, KeypointsFile,
-    N_KEYPOINTS, build_definitions, keypoint_index, keypoint_names,
+    N_KEYPOINTS, N_KEYPOINTS_TC127, build_definitions, keypoint_index, keypoint_names, tc127_names,
+    tc127_to_tc133,
 };
 use panoman_human::params::ShapeParams;
 use panoman_human::regions::Regions;
@@ -88,20 +89,75 @@ fn names_and_order() {
             "r_ankle"
         ]
     );
-    assert_eq!(n[15], "face_00");
-    assert_eq!(n[84], "face_69");
-    assert_eq!(n[85], "lhand_00");
-    assert_eq!(n[105], "lhand_20");
-    assert_eq!(n[106], "rhand_00");
-    assert_eq!(n[126], "rhand_20");
+    assert_eq!(
+        n[15..21],
+        [
+            "l_big_toe",
+            "l_small_toe",
+            "l_heel",
+            "r_big_toe",
+            "r_small_toe",
+            "r_heel"
+        ]
+    );
+    assert_eq!(N_KEYPOINTS, 133);
+    assert_eq!(n[21], "face_00");
+    assert_eq!(n[90], "face_69");
+    assert_eq!(n[91], "lhand_00");
+    assert_eq!(n[111], "lhand_20");
+    assert_eq!(n[112], "rhand_00");
+    assert_eq!(n[132], "rhand_20");
     for (i, name) in n.iter().enumerate() {
         assert_eq!(keypoint_index(name), Some(i));
     }
     assert_eq!(keypoint_index("face_70"), None);
     assert_eq!(KeypointGroup::of(14), KeypointGroup::Body);
-    assert_eq!(KeypointGroup::of(84), KeypointGroup::Face);
-    assert_eq!(KeypointGroup::of(85), KeypointGroup::LeftHand);
-    assert_eq!(KeypointGroup::of(126), KeypointGroup::RightHand);
+    assert_eq!(KeypointGroup::of(15), KeypointGroup::Feet);
+    assert_eq!(KeypointGroup::of(20), KeypointGroup::Feet);
+    assert_eq!(KeypointGroup::of(90), KeypointGroup::Face);
+    assert_eq!(KeypointGroup::of(91), KeypointGroup::LeftHand);
+    assert_eq!(KeypointGroup::of(132), KeypointGroup::RightHand);
+    for (p, g) in KeypointGroup::ALL.iter().enumerate() {
+        assert_eq!(g.position(), p);
+        assert!(g.range().all(|i| KeypointGroup::of(i) == *g));
+    }
+    // TC-127: the same names without the feet, in the same order.
+    let old = tc127_names();
+    assert_eq!(old.len(), N_KEYPOINTS_TC127);
+    assert_eq!(
+        (old[14], old[15], old[126]),
+        ("r_ankle", "face_00", "rhand_20")
+    );
+    for (j, &i) in tc127_to_tc133().iter().enumerate() {
+        assert_eq!(n[i], old[j]);
+        assert_ne!(KeypointGroup::of(i), KeypointGroup::Feet);
+    }
+}
+
+#[test]
+fn points_of_either_layout() {
+    let pts = |n: usize| -> Vec<[f64; 3]> { (0..n).map(|i| [i as f64, 0.0, 0.0]).collect() };
+    let new = KeypointsFile::from_points(&pts(N_KEYPOINTS)).unwrap();
+    assert_eq!(new, KeypointsFile::from_all(&pts(N_KEYPOINTS)));
+    // A TC-127 array: every name but the feet, at its TC-133 index.
+    let old = KeypointsFile::from_points(&pts(127)).unwrap();
+    assert_eq!(old.points.len(), 127);
+    assert!((15..21).all(|i| !old.points.contains_key(&i)));
+    assert_eq!(
+        old.points[&keypoint_index("face_00").unwrap()],
+        [15.0, 0.0, 0.0]
+    );
+    assert_eq!(
+        old.points[&keypoint_index("rhand_20").unwrap()],
+        [126.0, 0.0, 0.0]
+    );
+    let e = KeypointsFile::from_points(&pts(128))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("133") && e.contains("127") && e.contains("128"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -117,6 +173,8 @@ fn held_out_accuracy_per_group() {
     assert_eq!(group(full, "body").n_keypoints, 14);
     assert_eq!(group(full, "hands").n_keypoints, 32);
     assert_eq!(group(full, "face").n_keypoints, 2);
+    // The foot points are surface points: no regressor, no group.
+    assert!(full.iter().all(|e| e.group != "feet"));
     // Full template: ≤ 3 mm mean per group (measured ≈ 1.6 body, 0.3 hands, 0.4 pupils).
     for g in ["body", "left_hand", "right_hand", "hands", "face"] {
         assert!(
@@ -159,8 +217,9 @@ fn rows_are_sparse_affine_and_kinds_match_the_layout() {
     let n = keypoint_names();
     for (k, name) in n.iter().enumerate() {
         let surface = k == 1
-            || (15..15 + 68).contains(&k)
-            || ((85..N_KEYPOINTS).contains(&k) && (k - 85) % 21 % 4 == 0 && (k - 85) % 21 != 0);
+            || (15..21).contains(&k)
+            || (21..21 + 68).contains(&k)
+            || ((91..N_KEYPOINTS).contains(&k) && (k - 91) % 21 % 4 == 0 && (k - 91) % 21 != 0);
         let kind = if surface {
             KeypointKind::Surface
         } else {
@@ -176,7 +235,7 @@ fn rows_are_sparse_affine_and_kinds_match_the_layout() {
         }
     }
     // The nose is face_30.
-    assert_eq!(d.full.rows[1], d.full.rows[15 + 30]);
+    assert_eq!(d.full.rows[1], d.full.rows[21 + 30]);
     // Translation equivariance.
     let shifted: Vec<[f64; 3]> = f
         .rest
@@ -196,13 +255,16 @@ fn keypoints_sit_on_the_right_features() {
     let f = fixture();
     let kp = f.defs.full.evaluate(&f.rest);
     let at = |name: &str| kp[keypoint_index(name).unwrap()];
-    let face = |i: usize| kp[15 + i];
+    let face = |i: usize| kp[21 + i];
     // Sides: the character's left is +x.
     for (l, r) in [
         ("l_shoulder", "r_shoulder"),
         ("l_wrist", "r_wrist"),
         ("l_knee", "r_knee"),
         ("lhand_08", "rhand_08"),
+        ("l_big_toe", "r_big_toe"),
+        ("l_small_toe", "r_small_toe"),
+        ("l_heel", "r_heel"),
     ] {
         assert!(at(l)[0] > 0.05 && at(r)[0] < -0.05, "{l} / {r}");
         assert!((at(l)[0] + at(r)[0]).abs() < 2e-3, "{l} / {r} mirror");
@@ -213,6 +275,34 @@ fn keypoints_sit_on_the_right_features() {
     assert!(z("nose") > z("neck") && z("neck") > z("l_shoulder"));
     assert!(z("l_shoulder") > z("body_center") && z("l_hip") > z("l_knee"));
     assert!(z("l_knee") > z("l_ankle"));
+    // Feet (rest frame: facing −y): toes in front of the ankle, the heel behind and below
+    // it, all three near the floor; the big toe medial of the little toe, ahead of it.
+    let y = |n: &str| at(n)[1];
+    let floor = f.rest.iter().map(|p| p[2]).fold(f64::INFINITY, f64::min);
+    for s in ["l", "r"] {
+        let k = |n: &str| format!("{s}_{n}");
+        let (big, small, heel, ankle) = (k("big_toe"), k("small_toe"), k("heel"), k("ankle"));
+        assert!(
+            y(&big) < y(&ankle) - 0.10 && y(&small) < y(&ankle) - 0.06,
+            "{s} toes"
+        );
+        assert!(
+            y(&heel) > y(&ankle) + 0.02 && z(&heel) < z(&ankle) - 0.03,
+            "{s} heel"
+        );
+        for p in [&big, &small, &heel] {
+            assert!(
+                z(p) - floor < 0.05,
+                "{p} at {:.3} m over the floor",
+                z(p) - floor
+            );
+        }
+        assert!(
+            at(&big)[0].abs() < at(&small)[0].abs() - 0.02,
+            "{s} big toe medial"
+        );
+        assert!(y(&big) < y(&small), "{s} big toe ahead");
+    }
     // Face: mirror pairs of the 300-W layout on the symmetric default face.
     for (a, b) in [
         (0, 16),

@@ -68,8 +68,8 @@ pub struct Markers {
 }
 
 impl Markers {
-    /// Markers named by the TC-127 keypoints given in any of `frames` (one keypoints file per
-    /// mesh frame), in TC-127 order.
+    /// Markers named by the TC-133 keypoints given in any of `frames` (one keypoints file per
+    /// mesh frame), in TC-133 order.
     pub fn from_keypoints(frames: &[panoman_human::keypoints::KeypointsFile]) -> Markers {
         let names = panoman_human::keypoints::keypoint_names();
         let used: std::collections::BTreeSet<usize> = frames

@@ -1,11 +1,11 @@
-//! Keypoints from other tools → TC-127 targets ([`KeypointsFile`]).
+//! Keypoints from other tools → TC-133 targets ([`KeypointsFile`]).
 //!
 //! Layouts (mapping tables and examples: `docs/formats-interchange.md`):
 //!
-//! * **TC-127 JSON**, panoman's own (`{"units": "m", "keypoints": {…}, "weights": {…}}`), read
-//!   by [`KeypointsFile::parse`]; always metres.
+//! * **panoman JSON** (`{"units": "m", "keypoints": {…}, "weights": {…}}`, TC-133 names; a
+//!   TC-127 file is one without the feet), read by [`KeypointsFile::parse`]; always metres.
 //! * **OpenPose JSON** (one file per frame): `people[person]` with `pose_keypoints_3d` (BODY_25,
-//!   25 × `x y z c`), `face_keypoints_3d` (70 × 4), `hand_left_keypoints_3d` and
+//!   25 × `x y z c`: the 15 body joints and the six foot points), `face_keypoints_3d` (70 × 4), `hand_left_keypoints_3d` and
 //!   `hand_right_keypoints_3d` (21 × 4 each). An empty or absent array is an absent group. The
 //!   `_2d` arrays are recognised, but a file that has only 2D keypoints is rejected (the fit
 //!   needs 3D targets).
@@ -17,7 +17,7 @@
 //!   part's `averageScore` (1 when absent).
 //!
 //! Confidences become weights; a point whose confidence is 0 is skipped (missing), as is every
-//! TC-127 keypoint the source has no counterpart for. A negative or non-finite confidence or
+//! TC-133 keypoint the source has no counterpart for. A negative or non-finite confidence or
 //! coordinate is an error. OpenPose and Panoptic coordinates are scaled by [`Unit`]
 //! (centimetres by default, both tools' unit) and otherwise taken as they are (no change of
 //! axes: the fit's placement absorbs the frame).
@@ -28,7 +28,8 @@
 use std::path::Path;
 
 use panoman_human::keypoints::{
-    FACE_OFFSET, KeypointsFile, LHAND_OFFSET, N_BODY, N_FACE, N_HAND, RHAND_OFFSET,
+    FACE_OFFSET, FEET_OFFSET, KeypointsFile, LHAND_OFFSET, N_BODY, N_FACE, N_FEET, N_HAND,
+    RHAND_OFFSET,
 };
 use panoman_mesh::geom::V3;
 use serde_json::Value;
@@ -38,8 +39,8 @@ use crate::error::{InterchangeError, Result};
 /// Which of the supported formats a keypoints file is in (the CLI's `--keypoints-format`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum KeypointFormat {
-    /// panoman's TC-127 JSON.
-    Tc127,
+    /// panoman's keypoints JSON (TC-133 names; TC-127 files are the same without the feet).
+    Panoman,
     /// OpenPose JSON (BODY_25 + face 70 + hands 2 × 21).
     OpenPose,
     /// CMU Panoptic `hdPose3d_stage1_coco19` / `hdFace3d` / `hdHand3d` JSON.
@@ -49,14 +50,15 @@ pub enum KeypointFormat {
 impl std::str::FromStr for KeypointFormat {
     type Err = InterchangeError;
 
-    /// `tc127`, `openpose` or `panoptic` (case-insensitive).
+    /// `panoman` (also `tc133` and the older layout's `tc127`), `openpose` or `panoptic`
+    /// (case-insensitive).
     fn from_str(s: &str) -> Result<Self> {
         match s.to_ascii_lowercase().as_str() {
-            "tc127" | "tc-127" => Ok(KeypointFormat::Tc127),
+            "panoman" | "tc133" | "tc-133" | "tc127" | "tc-127" => Ok(KeypointFormat::Panoman),
             "openpose" => Ok(KeypointFormat::OpenPose),
             "panoptic" => Ok(KeypointFormat::Panoptic),
             _ => Err(InterchangeError::Invalid(format!(
-                "unknown keypoints format `{s}` (expected tc127, openpose or panoptic)"
+                "unknown keypoints format `{s}` (expected panoman, openpose or panoptic)"
             ))),
         }
     }
@@ -65,8 +67,8 @@ impl std::str::FromStr for KeypointFormat {
 /// The concrete layout of one file, as [`detect`] finds it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Layout {
-    /// TC-127 JSON (`keypoints`).
-    Tc127,
+    /// panoman's keypoints JSON (`keypoints`).
+    Panoman,
     /// OpenPose JSON (`people[].pose_keypoints_*` / `face_keypoints_*` / `hand_*_keypoints_*`).
     OpenPose,
     /// Panoptic body (`bodies[].joints19`).
@@ -81,14 +83,14 @@ impl Layout {
     /// The format this layout belongs to.
     pub fn format(self) -> KeypointFormat {
         match self {
-            Layout::Tc127 => KeypointFormat::Tc127,
+            Layout::Panoman => KeypointFormat::Panoman,
             Layout::OpenPose => KeypointFormat::OpenPose,
             _ => KeypointFormat::Panoptic,
         }
     }
 }
 
-/// Length unit of OpenPose / Panoptic coordinates (TC-127 files are always metres).
+/// Length unit of OpenPose / Panoptic coordinates (TC-133 files are always metres).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Unit {
     /// Metres.
@@ -145,12 +147,12 @@ pub struct ImportOptions {
     pub format: Option<KeypointFormat>,
 }
 
-/// OpenPose BODY_25 index of each TC-127 body keypoint (all 15 have one).
-pub const OPENPOSE_BODY25_TO_TC127: [usize; N_BODY] =
+/// OpenPose BODY_25 index of each TC-133 body keypoint (all 15 have one).
+pub const OPENPOSE_BODY25_TO_TC133: [usize; N_BODY] =
     [1, 0, 8, 5, 6, 7, 12, 13, 14, 2, 3, 4, 9, 10, 11];
 
-/// Panoptic `coco19` index of each TC-127 body keypoint: the first 15 joints, same order.
-pub const PANOPTIC_COCO19_TO_TC127: [usize; N_BODY] =
+/// Panoptic `coco19` index of each TC-133 body keypoint: the first 15 joints, same order.
+pub const PANOPTIC_COCO19_TO_TC133: [usize; N_BODY] =
     [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14];
 
 /// The layout of a parsed keypoints document, from its keys.
@@ -163,7 +165,7 @@ pub fn detect(doc: &Value, path: &Path) -> Result<Layout> {
         .ok_or_else(|| InterchangeError::format(path, "expected a JSON object"))?;
     let mut found = Vec::new();
     if obj.contains_key("keypoints") {
-        found.push(Layout::Tc127);
+        found.push(Layout::Panoman);
     }
     if obj.contains_key("bodies") {
         found.push(Layout::PanopticBody);
@@ -198,7 +200,7 @@ pub fn detect(doc: &Value, path: &Path) -> Result<Layout> {
         [one] => Ok(*one),
         [] => Err(InterchangeError::format(
             path,
-            "unknown keypoints layout: expected TC-127 (`keypoints`), OpenPose \
+            "unknown keypoints layout: expected panoman (`keypoints`), OpenPose \
              (`people[].pose_keypoints_3d` …) or CMU Panoptic (`bodies[].joints19`, \
              `people[].face70`, `people[].left_hand`/`right_hand`)",
         )),
@@ -209,7 +211,7 @@ pub fn detect(doc: &Value, path: &Path) -> Result<Layout> {
     }
 }
 
-/// Reads one keypoints file of any supported layout as TC-127 targets.
+/// Reads one keypoints file of any supported layout as TC-133 targets.
 ///
 /// # Errors
 /// I/O, JSON, unknown or unexpected layout, wrong array lengths, 2D-only OpenPose data, bad
@@ -245,48 +247,15 @@ pub fn read_keypoints_files(paths: &[&Path], options: &ImportOptions) -> Result<
     Ok(out)
 }
 
-/// OpenPose BODY_25 indices of the six foot points (`LBigToe`, `LSmallToe`, `LHeel`,
-/// `RBigToe`, `RSmallToe`, `RHeel`), in the order of `panoman::feet::FOOT_POINT_NAMES`.
-pub const OPENPOSE_BODY25_FEET: [usize; 6] = [19, 20, 21, 22, 23, 24];
-
-/// A keypoints file read with what TC-127 has no place for: the foot points.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct ImportedKeypoints {
-    /// The TC-127 targets.
-    pub keypoints: KeypointsFile,
-    /// The six foot points ([`OPENPOSE_BODY25_FEET`] order: left big toe, small toe, heel,
-    /// then right), each `(position in metres, confidence)`; `None` where the file has none
-    /// or its confidence is 0 (only OpenPose BODY_25 carries them).
-    pub feet: [Option<(V3, f64)>; 6],
-}
-
-/// [`read_keypoints`] that also returns the foot points of an OpenPose BODY_25 file.
-///
-/// # Errors
-/// See [`read_keypoints`]; a foot point with a non-finite coordinate or a negative or
-/// non-finite confidence.
-pub fn read_keypoints_with_feet(path: &Path, options: &ImportOptions) -> Result<ImportedKeypoints> {
-    let text = std::fs::read_to_string(path).map_err(|e| InterchangeError::io(path, e))?;
-    parse_keypoints_with_feet(&text, path, options)
-}
+/// OpenPose BODY_25 index of each TC-133 foot keypoint (`LBigToe`, `LSmallToe`, `LHeel`,
+/// `RBigToe`, `RSmallToe`, `RHeel`: [`panoman_human::keypoints::FEET_NAMES`] order).
+pub const OPENPOSE_BODY25_FEET: [usize; N_FEET] = [19, 20, 21, 22, 23, 24];
 
 /// Parses keypoints JSON text of any supported layout (`path` names the file in errors).
 ///
 /// # Errors
 /// See [`read_keypoints`].
 pub fn parse_keypoints(text: &str, path: &Path, options: &ImportOptions) -> Result<KeypointsFile> {
-    Ok(parse_keypoints_with_feet(text, path, options)?.keypoints)
-}
-
-/// [`parse_keypoints`] that also returns the foot points (see [`ImportedKeypoints`]).
-///
-/// # Errors
-/// See [`read_keypoints_with_feet`].
-pub fn parse_keypoints_with_feet(
-    text: &str,
-    path: &Path,
-    options: &ImportOptions,
-) -> Result<ImportedKeypoints> {
     let doc: Value = serde_json::from_str(text)
         .map_err(|e| InterchangeError::format(path, format!("invalid JSON: {e}")))?;
     let layout = detect(&doc, path)?;
@@ -301,15 +270,11 @@ pub fn parse_keypoints_with_feet(
     let fmt = |w: String| InterchangeError::format(path, w);
     let mut acc = Acc {
         out: KeypointsFile::default(),
-        feet: [None; 6],
         per_metre: options.unit.per_metre(),
     };
     match layout {
-        Layout::Tc127 => {
-            return Ok(ImportedKeypoints {
-                keypoints: KeypointsFile::parse(text).map_err(|e| fmt(e.to_string()))?,
-                feet: [None; 6],
-            });
+        Layout::Panoman => {
+            return KeypointsFile::parse(text).map_err(|e| fmt(e.to_string()));
         }
         Layout::OpenPose => openpose(&doc, options.person, &mut acc).map_err(fmt)?,
         Layout::PanopticBody => {
@@ -317,7 +282,7 @@ pub fn parse_keypoints_with_feet(
             if let Some(b) = body {
                 let j = numbers(b.get("joints19"), "joints19").map_err(fmt)?;
                 check_len(&j, 19, 4, "joints19 (COCO-19 × x y z c)").map_err(fmt)?;
-                for (t, &s) in PANOPTIC_COCO19_TO_TC127.iter().enumerate() {
+                for (t, &s) in PANOPTIC_COCO19_TO_TC133.iter().enumerate() {
                     acc.point(t, &j[4 * s..4 * s + 3], j[4 * s + 3], "joints19", s)
                         .map_err(fmt)?;
                 }
@@ -341,16 +306,12 @@ pub fn parse_keypoints_with_feet(
         }
     }
     acc.out.validate().map_err(|e| fmt(e.to_string()))?;
-    Ok(ImportedKeypoints {
-        keypoints: acc.out,
-        feet: acc.feet,
-    })
+    Ok(acc.out)
 }
 
-/// The collected targets, foot points and the unit (units per metre).
+/// The collected targets and the unit (units per metre).
 struct Acc {
     out: KeypointsFile,
-    feet: [Option<(V3, f64)>; 6],
     per_metre: f64,
 }
 
@@ -375,7 +336,7 @@ impl Acc {
         Ok((c > 0.0).then(|| [xyz[0] / m, xyz[1] / m, xyz[2] / m]))
     }
 
-    /// Adds TC-127 keypoint `t` from source values `xyz` with confidence `c` (skipped if 0).
+    /// Adds TC-133 keypoint `t` from source values `xyz` with confidence `c` (skipped if 0).
     fn point(
         &mut self,
         t: usize,
@@ -388,19 +349,6 @@ impl Acc {
             self.out.points.insert(t, p);
             self.out.weights.insert(t, c);
         }
-        Ok(())
-    }
-
-    /// Sets foot point `k` ([`OPENPOSE_BODY25_FEET`] order) like [`Acc::point`].
-    fn foot(
-        &mut self,
-        k: usize,
-        xyz: &[f64],
-        c: f64,
-        array: &str,
-        s: usize,
-    ) -> std::result::Result<(), String> {
-        self.feet[k] = self.value(xyz, c, array, s)?.map(|p| (p, c));
         Ok(())
     }
 }
@@ -455,11 +403,14 @@ fn openpose(doc: &Value, person: usize, acc: &mut Acc) -> std::result::Result<()
     let Some(p) = pick(doc, "people", person)? else {
         return Ok(());
     };
-    // (array stem, record count, TC-127 index of each source index)
+    // (array stem, record count, TC-133 index of each source index)
     let body: Vec<usize> = {
         let mut m = vec![usize::MAX; 25];
-        for (t, &s) in OPENPOSE_BODY25_TO_TC127.iter().enumerate() {
+        for (t, &s) in OPENPOSE_BODY25_TO_TC133.iter().enumerate() {
             m[s] = t;
+        }
+        for (k, &s) in OPENPOSE_BODY25_FEET.iter().enumerate() {
+            m[s] = FEET_OFFSET + k;
         }
         m
     };
@@ -501,11 +452,6 @@ fn openpose(doc: &Value, person: usize, acc: &mut Acc) -> std::result::Result<()
         for (s, &t) in map.iter().enumerate() {
             if t != usize::MAX {
                 acc.point(t, &v[4 * s..4 * s + 3], v[4 * s + 3], &key, s)?;
-            }
-        }
-        if *stem == "pose_keypoints" {
-            for (k, &s) in OPENPOSE_BODY25_FEET.iter().enumerate() {
-                acc.foot(k, &v[4 * s..4 * s + 3], v[4 * s + 3], &key, s)?;
             }
         }
     }

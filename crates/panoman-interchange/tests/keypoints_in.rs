@@ -1,14 +1,16 @@
-//! The same targets written as TC-127 JSON, OpenPose JSON and CMU Panoptic JSON (in the
-//! layouts of docs/formats-interchange.md) read back as identical TC-127 targets; bad files give
+//! The same targets written as panoman JSON, OpenPose JSON and CMU Panoptic JSON (in the
+//! layouts of docs/formats-interchange.md) read back as identical TC-133 targets; bad files give
 //! one error naming the file.
 
 mod common;
 
 use std::path::{Path, PathBuf};
 
-use panoman_human::keypoints::{FACE_OFFSET, KeypointsFile, LHAND_OFFSET, N_BODY, N_FACE, N_HAND};
+use panoman_human::keypoints::{
+    FACE_OFFSET, FEET_OFFSET, KeypointsFile, LHAND_OFFSET, N_BODY, N_FACE, N_FEET, N_HAND,
+};
 use panoman_interchange::keypoints_in::{
-    self, ImportOptions, KeypointFormat, OPENPOSE_BODY25_TO_TC127, Unit,
+    self, ImportOptions, KeypointFormat, OPENPOSE_BODY25_FEET, OPENPOSE_BODY25_TO_TC133, Unit,
 };
 use serde_json::{Value, json};
 
@@ -43,7 +45,7 @@ fn targets() -> KeypointsFile {
     k
 }
 
-/// `x y z c` records (cm) of TC-127 indices `idx`; missing → zeros with c = 0.
+/// `x y z c` records (cm) of TC-133 indices `idx`; missing → zeros with c = 0.
 fn xyzc(k: &KeypointsFile, idx: impl Iterator<Item = usize>) -> Vec<f64> {
     idx.flat_map(|t| match k.points.get(&t) {
         Some(p) => vec![p[0] * 100.0, p[1] * 100.0, p[2] * 100.0, k.weight(t)],
@@ -61,12 +63,17 @@ fn xyz_cm(k: &KeypointsFile, idx: impl Iterator<Item = usize>) -> Vec<f64> {
 }
 
 fn openpose_doc(k: &KeypointsFile) -> Value {
-    // BODY_25: the mapped 15 from the targets, the other 10 (eyes, ears, feet) arbitrary.
+    // BODY_25: the mapped 15 and the six foot points from the targets, the other 4 (eyes,
+    // ears) arbitrary.
     let mut pose = vec![0.0; 100];
     for s in 0..25 {
         pose[4 * s..4 * s + 4].copy_from_slice(&[s as f64, -(s as f64), 7.0, 0.9]);
     }
-    for (t, &s) in OPENPOSE_BODY25_TO_TC127.iter().enumerate() {
+    for (t, &s) in OPENPOSE_BODY25_TO_TC133.iter().enumerate() {
+        pose[4 * s..4 * s + 4].copy_from_slice(&xyzc(k, t..t + 1));
+    }
+    for (k_, &s) in OPENPOSE_BODY25_FEET.iter().enumerate() {
+        let t = FEET_OFFSET + k_;
         pose[4 * s..4 * s + 4].copy_from_slice(&xyzc(k, t..t + 1));
     }
     json!({
@@ -87,7 +94,7 @@ fn openpose_doc(k: &KeypointsFile) -> Value {
 
 fn panoptic_docs(k: &KeypointsFile) -> [Value; 3] {
     let mut j19 = xyzc(k, 0..N_BODY);
-    j19.extend([10.0, 20.0, 30.0, 0.7].repeat(4)); // eyes and ears: no TC-127 counterpart
+    j19.extend([10.0, 20.0, 30.0, 0.7].repeat(4)); // eyes and ears: no TC-133 counterpart
     [
         json!({"version": 0.7, "univTime": 1234.5, "fpsType": "hd_29_97",
                "bodies": [{"id": 0, "joints19": j19}]}),
@@ -250,60 +257,51 @@ fn nobody_in_the_frame_gives_no_targets() {
     assert!(k.points.is_empty());
 }
 
-/// OpenPose BODY_25's six foot points (19–24) come back apart from the TC-127 targets, in
-/// metres with their confidences; confidence 0 is absent; a bad foot point is an error naming
-/// the file; TC-127 files carry none.
+/// OpenPose BODY_25's six foot points (19–24) are the layout's foot keypoints, in metres
+/// with their confidences as weights; confidence 0 is absent; a bad foot point is an error
+/// naming the file; a TC-127 file (no feet) reads as it is.
 #[test]
-fn openpose_foot_points_are_read_apart() {
+fn openpose_foot_points_are_foot_keypoints() {
     let dir = common::scratch("keypoints_in_feet");
-    let want = targets();
-    let mut doc = openpose_doc(&want);
-    let pose = doc["people"][0]["pose_keypoints_3d"]
-        .as_array_mut()
-        .unwrap();
-    for k in 0..6 {
-        let s = keypoints_in::OPENPOSE_BODY25_FEET[k];
-        let c = if k == 4 { 0.0 } else { 0.25 + 0.125 * k as f64 };
-        for (j, v) in [10.0 + k as f64, -20.0, 2.5 * k as f64, c]
-            .into_iter()
-            .enumerate()
-        {
-            pose[4 * s + j] = json!(v);
+    let mut want = targets();
+    for k in 0..N_FEET {
+        if k != 4 {
+            let t = FEET_OFFSET + k;
+            want.points
+                .insert(t, [(10.0 + k as f64) / 100.0, -0.2, 0.025 * k as f64]);
+            want.weights.insert(t, 0.25 + 0.125 * k as f64);
         }
     }
+    let doc = openpose_doc(&want);
     let p = write(&dir, "feet_keypoints.json", &doc);
-    let r = keypoints_in::read_keypoints_with_feet(&p, &ImportOptions::default()).unwrap();
-    assert_same(&want, &r.keypoints, "openpose with feet");
-    for k in 0..6 {
+    let r = keypoints_in::read_keypoints(&p, &ImportOptions::default()).unwrap();
+    assert_same(&want, &r, "openpose with feet");
+    for k in 0..N_FEET {
+        let t = FEET_OFFSET + k;
         if k == 4 {
-            assert_eq!(r.feet[k], None, "confidence 0 is absent");
-            continue;
+            assert!(!r.points.contains_key(&t), "confidence 0 is absent");
+        } else {
+            assert_eq!(r.weight(t), 0.25 + 0.125 * k as f64);
         }
-        let (q, c) = r.feet[k].expect("foot point given");
-        let want_q = [(10.0 + k as f64) / 100.0, -0.2, 0.025 * k as f64];
-        for a in 0..3 {
-            assert!(
-                (q[a] - want_q[a]).abs() < 1e-12,
-                "foot {k}: {q:?} vs {want_q:?}"
-            );
-        }
-        assert_eq!(c, 0.25 + 0.125 * k as f64);
     }
-    // The TC-127 reader's view of the same file is unchanged.
-    let plain = keypoints_in::read_keypoints(&p, &ImportOptions::default()).unwrap();
-    assert_same(&plain, &r.keypoints, "read_keypoints");
-    // A TC-127 file has no foot points.
+    // A TC-127 file (the feet absent, names as before) reads as it is.
     let tc = dir.join("frame.tc127.json");
-    want.write(&tc).unwrap();
-    let t = keypoints_in::read_keypoints_with_feet(&tc, &ImportOptions::default()).unwrap();
-    assert_eq!(t.feet, [None; 6]);
+    let mut old = want.clone();
+    old.points
+        .retain(|i, _| !(FEET_OFFSET..FEET_OFFSET + N_FEET).contains(i));
+    old.weights
+        .retain(|i, _| !(FEET_OFFSET..FEET_OFFSET + N_FEET).contains(i));
+    old.write(&tc).unwrap();
+    let t = keypoints_in::read_keypoints(&tc, &ImportOptions::default()).unwrap();
+    assert_same(&old, &t, "tc127");
     // A non-finite heel or a negative confidence: one error naming the file and the point.
+    let mut doc = openpose_doc(&want);
     pose_set(&mut doc, 4 * 21, json!(null));
     let e = error_of(&dir, "bad_heel.json", &doc);
     assert!(e.contains("pose_keypoints") && e.contains("[84]"), "{e}");
     let mut doc = openpose_doc(&want);
     pose_set(&mut doc, 4 * 24 + 3, json!(-1.0));
-    let e = keypoints_in::read_keypoints_with_feet(
+    let e = keypoints_in::read_keypoints(
         &write(&dir, "bad_conf.json", &doc),
         &ImportOptions::default(),
     )

@@ -20,7 +20,7 @@
 //!   tracking (PanoMan or LBS) and held-out marker error; [`solve_run::solve_capture`] runs it
 //!   from files; [`glitch`]: capture glitches found from the markers alone.
 //! * [`jitter::mean_acceleration`]: the jitter of a solved sequence beside the markers' own.
-//! * [`track::track_retarget`]: retargeted motion tracked from the TC-127 keypoints of its
+//! * [`track::track_retarget`]: retargeted motion tracked from the TC-133 keypoints of its
 //!   generated meshes (PanoMan and the LBS baseline), per-vertex error and time per frame.
 //!
 //! Every error is a [`MocapError`] whose message names the file and what is wrong; no

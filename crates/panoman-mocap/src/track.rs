@@ -1,22 +1,20 @@
-//! Tracking of retargeted motion from the TC-127 keypoints of its own meshes (issue 13: "CMU
-//! `01_01` retargeted … tracked from TC-127 keypoints of the generated meshes").
+//! Tracking of retargeted motion from the TC-133 keypoints of its own meshes (issue 13: "CMU
+//! `01_01` retargeted … tracked from the keypoints of the generated meshes").
 //!
 //! Per selected frame: the rig generator (embedded in the model) poses the frame's
 //! [`GeneratorParams`] — the ground truth, mapped onto the model's topology —, the model's
-//! 127 keypoints of that mesh ([`panoman::Model::keypoints`]) are the only targets, and two
+//! keypoints of that mesh ([`panoman::Model::keypoints`]) are the only targets, and two
 //! [`panoman::Tracker`]s fit them in frame order: PanoMan (skeletal IK warm-started from the
 //! previous frame, then the shell fit with temporal terms) and the LBS baseline (the IK
 //! alone, warm-started). Both are the trackers of `panoman track`; the per-vertex errors are
 //! those of `panoman eval`'s clip ([`panoman::eval::Groups`]: no alignment, world frame).
 //!
-//! With `feet` ([`track_generated`]), each frame also gives the trackers six foot points —
-//! big toe, small toe and heel of each foot ([`foot_points`]; what OpenPose BODY_25 and
-//! COCO-WholeBody detectors add to a body layout) — at their positions on the generated mesh,
-//! as vertex handles ([`panoman::Targets::handles`]: the IK fits them as point targets, the
-//! shell fit as handles). TC-127 stops at the ankles, so without them a foot's flexion is not
-//! observed (crates/panoman-mocap/README.md). With `contacts` ([`TrackOptions::contacts`]) the
-//! trackers get the foot–floor contact prior instead ([`panoman::feet::ContactPrior`]),
-//! detected from the frames' own ankle keypoints: no observation beyond TC-127.
+//! The layout's six foot keypoints (big toe, little toe and heel of each foot, what OpenPose
+//! BODY_25 and COCO-WholeBody detectors add to a body layout) observe the feet's flexion.
+//! [`TrackOptions::without_feet`] drops them (the older TC-127 layout, whose body stops at the
+//! ankles); with `contacts` ([`TrackOptions::contacts`]) the trackers then get the foot–floor
+//! contact prior ([`panoman::feet::ContactPrior`]), detected from the frames' own ankle
+//! keypoints: no observation beyond TC-127.
 //!
 //! Units: metres in the API (meshes, keypoints), millimetres and milliseconds in the report.
 
@@ -24,7 +22,6 @@ use std::time::Instant;
 
 use panoman::eval::{Groups, MeshTriple, PartErrors};
 use panoman::{FitRequest, IkStart, Method, Model, ShapeCalibrationOptions, Targets, Tracker, V3};
-use panoman_fit::fit::VertexHandle;
 use panoman_fit::shape_calibration::spread_frames;
 use panoman_fit::twist::median;
 use panoman_human::params::GeneratorParams;
@@ -127,9 +124,9 @@ pub struct TrackReport {
     pub setup_seconds: f64,
     /// The model's vertex count (the topology errors are measured on).
     pub n_vertices: usize,
-    /// The foot points given to the trackers besides the keypoints (`(name, vertex)`; empty
-    /// without `feet`).
-    pub foot_points: Vec<(String, u32)>,
+    /// The keypoint layout the trackers were given: `TC-133`, or `TC-127` with
+    /// [`TrackOptions::without_feet`].
+    pub layout: String,
     /// The shape calibration, with [`TrackOptions::shape_frames`] > 0.
     pub calibration: Option<TrackCalibration>,
     /// The contact prior, with [`TrackOptions::contacts`].
@@ -140,16 +137,16 @@ pub struct TrackReport {
     pub worst: Option<MeshTriple>,
 }
 
-pub use panoman::feet::{ContactOptions, ContactPrior, FOOT_POINT_NAMES, foot_points};
+pub use panoman::feet::{ContactOptions, ContactPrior};
 
 /// What the trackers of [`track_generated`] are given besides the keypoints.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TrackOptions {
-    /// The six foot points as vertex handles (module docs).
-    pub feet: bool,
+    /// Drop the six foot keypoints from the targets: the older TC-127 layout (module docs).
+    pub without_feet: bool,
     /// Calibrate the identity's lengths from this many frames spread over the selection
-    /// before tracking ([`panoman::Fitter::calibrate_shape`] on their keypoints, and foot
-    /// points with `feet`; both trackers then hold the calibrated lengths,
+    /// before tracking ([`panoman::Fitter::calibrate_shape`] on their keypoints; both
+    /// trackers then hold the calibrated lengths,
     /// [`Tracker::set_shape`]); 0: none, the IK's six phenotype values only.
     pub shape_frames: usize,
     /// The foot–floor contact prior ([`panoman::feet::FootContacts`]): contacts detected
@@ -179,7 +176,7 @@ pub struct TrackCalibration {
     pub frames: Vec<usize>,
     /// The fitted length knobs (`(first local change, value)`, [`panoman::LENGTH_KNOBS`]).
     pub knobs: Vec<(String, f64)>,
-    /// Mean keypoint (and foot point) distance over its frames before and after, mm.
+    /// Mean keypoint distance over its frames before and after, mm.
     pub before_mm: f64,
     /// See `before_mm`.
     pub after_mm: f64,
@@ -227,13 +224,13 @@ fn inv(what: impl Into<String>) -> MocapError {
 }
 
 /// Tracks the meshes of `frames` — `(source frame index, generator parameters)` in order —
-/// from their TC-127 keypoints with PanoMan and the LBS baseline (see the module docs) and
+/// from their keypoints with PanoMan and the LBS baseline (see the module docs) and
 /// measures the per-vertex error of both against the generated meshes.
 ///
 /// The meshes are generated by the rig embedded in `model` on the model's topology
-/// (`(V, 3)`, metres); an identity is built once per distinct shape. With `feet`, the six
-/// [`foot_points`] (picked on the default identity's rest mesh) join the keypoints as vertex
-/// handles at their positions on each generated mesh. `progress` hears every finished frame.
+/// (`(V, 3)`, metres); an identity is built once per distinct shape. The targets are the
+/// model's keypoints of each generated mesh, less the feet with
+/// [`TrackOptions::without_feet`]. `progress` hears every finished frame.
 ///
 /// # Errors
 /// [`MocapError::Invalid`] for no frames, a model without an embedded rig or on a topology
@@ -258,14 +255,18 @@ pub fn track_generated(
         .map_err(|e| inv(format!("model: {e}")))?;
     let names = rig.generator.bone_names();
     let groups = Groups::of_model(model);
-    let foot = if opts.feet {
+    let feet = panoman_human::keypoints::KeypointGroup::Feet.range();
+    let has_feet = feet.clone().all(|i| {
         model
-            .foot_points()
-            .map_err(|e| inv(format!("foot points: {e}")))?
-            .to_vec()
-    } else {
-        Vec::new()
-    };
+            .keypoint_names()
+            .contains(&panoman_human::keypoints::keypoint_names()[i])
+    });
+    if !opts.without_feet && !has_feet {
+        return Err(inv(
+            "the model's keypoints have no foot points (a model of the TC-127 layout: train \
+             it anew, or track without the feet)",
+        ));
+    }
     let t_setup = Instant::now();
     let tracker = |method| {
         let req = FitRequest {
@@ -289,14 +290,10 @@ pub fn track_generated(
         let id = &identity.as_ref().expect("identity built above").1;
         let truth = rig.map.map(topology, &id.pose(&p.pose).vertices);
         let mut targets = Targets::from_keypoints(&model.keypoints(&truth).map_err(|e| at(&e))?);
-        targets.handles = foot
-            .iter()
-            .map(|&v| VertexHandle {
-                vertex: v,
-                position: truth[v as usize],
-                weight: 1.0,
-            })
-            .collect();
+        if opts.without_feet {
+            targets.keypoints.points.retain(|i, _| !feet.contains(i));
+            targets.keypoints.weights.retain(|i, _| !feet.contains(i));
+        }
         Ok((truth, targets))
     };
     let calibration = if opts.shape_frames > 0 {
@@ -389,11 +386,12 @@ pub fn track_generated(
         generate_ms_per_frame: gen_s * 1e3 / rows.len() as f64,
         setup_seconds,
         n_vertices: model.n_vertices(),
-        foot_points: FOOT_POINT_NAMES
-            .iter()
-            .zip(&foot)
-            .map(|(n, &v)| ((*n).to_string(), v))
-            .collect(),
+        layout: if opts.without_feet {
+            "TC-127"
+        } else {
+            "TC-133"
+        }
+        .to_string(),
         calibration,
         contacts: pm.contacts().map(|p| {
             let w = &p.contacts.weights;
@@ -410,7 +408,7 @@ pub fn track_generated(
 }
 
 /// [`track_generated`] on the retarget `rt` of `bvh` (in metres, as calibrated): the
-/// generator parameters of the frames `range` selects (`feet`: see [`track_generated`]).
+/// generator parameters of the frames `range` selects.
 ///
 /// # Errors
 /// [`select_frames`]'s for the range, then [`track_generated`]'s.

@@ -1,4 +1,4 @@
-//! Retargeted CMU motion tracked from the TC-127 keypoints of its generated meshes
+//! Retargeted CMU motion tracked from the TC-133 keypoints of its generated meshes
 //! (`panoman_mocap::track`), on the committed `01_01` excerpt with the small test model.
 
 use std::path::Path;
@@ -81,12 +81,13 @@ fn excerpt_is_tracked_by_both_methods() {
     assert!(rep.panoman.max_mm < 40.0, "{:?}", rep.panoman);
 }
 
-/// The six foot points on the default identity's rest mesh (small model): big toe, small toe
-/// and heel of each foot, left on +x, toes forward (−y) of the heel, the big toe medial of the
-/// small toe, all on the sole; and the excerpt tracked with them as handles carries them.
+/// The contact prior's sole points on the default identity's rest mesh (small model): big
+/// toe, small toe and heel of each foot, left on +x, toes forward (−y) of the heel, the big
+/// toe medial of the small toe, all on the sole; the excerpt tracked from TC-133 (the foot
+/// keypoints among the targets) and from TC-127 (without them), each reporting its layout.
 #[test]
-fn foot_points_sit_on_the_soles_and_join_the_targets() {
-    use panoman_mocap::track::{FOOT_POINT_NAMES, foot_points};
+fn sole_points_and_the_foot_keypoints_in_tracking() {
+    use panoman::sole_points;
     let model = panoman::Model::load(panoman::training::small_model(None).expect("small model"))
         .expect("loads");
     let rig = model.inner().rig.clone().expect("rig");
@@ -95,7 +96,7 @@ fn foot_points_sit_on_the_soles_and_join_the_targets() {
     let rest = rig
         .map
         .map(topology, &id.pose(&Default::default()).vertices);
-    let p = foot_points(&rest).unwrap();
+    let p = sole_points(&rest).unwrap();
     let low = rest.iter().map(|v| v[2]).fold(f64::INFINITY, f64::min);
     let v = |k: usize| rest[p[k] as usize];
     for side in 0..2 {
@@ -118,27 +119,22 @@ fn foot_points_sit_on_the_soles_and_join_the_targets() {
     let bvh = read_bvh(&path).unwrap().scaled(CMU_UNIT_M);
     let shape = ShapeParams::default();
     let rt = CmuRetarget::calibrate(&id, &shape, &bvh, 0).unwrap();
-    let feet = TrackOptions {
-        feet: true,
-        shape_frames: 0,
+    let without = TrackOptions {
+        without_feet: true,
         ..TrackOptions::default()
     };
-    let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), feet, &mut |_, _, _| {}).unwrap();
-    let names: Vec<&str> = rep.foot_points.iter().map(|(n, _)| n.as_str()).collect();
-    assert_eq!(names, FOOT_POINT_NAMES);
-    assert_eq!(
-        rep.foot_points.iter().map(|(_, v)| *v).collect::<Vec<_>>(),
-        p.to_vec()
-    );
+    let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), without, &mut |_, _, _| {}).unwrap();
+    assert_eq!(rep.layout, "TC-127");
     assert!(rep.panoman.mean_mm.is_finite() && rep.lbs.mean_mm.is_finite());
     assert!(rep.calibration.is_none());
-    // With a shape calibration from two of the tracked frames (the first and the middle one).
+    // With a shape calibration from two of the tracked frames (the first and the middle one),
+    // from the whole layout.
     let cal = TrackOptions {
-        feet: true,
         shape_frames: 2,
         ..TrackOptions::default()
     };
     let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), cal, &mut |_, _, _| {}).unwrap();
+    assert_eq!(rep.layout, "TC-133");
     let c = rep.calibration.expect("calibrated");
     let n = bvh.n_frames().div_ceil(3);
     assert_eq!(c.frames, vec![0, 3 * (n / 2)]);
@@ -157,7 +153,7 @@ fn contact_prior_tracks_the_excerpt() {
     use panoman_mocap::track::{ContactOptions, track_generated};
     let model = panoman::Model::load(panoman::training::small_model(None).expect("small model"))
         .expect("loads");
-    let feet = model.foot_points().unwrap();
+    let feet = model.sole_points().unwrap();
     let soles = model.sole_levels().unwrap();
     for (s, pair) in soles.iter().enumerate() {
         for (k, l) in pair.iter().enumerate() {
@@ -174,6 +170,7 @@ fn contact_prior_tracks_the_excerpt() {
     let rt = CmuRetarget::calibrate(&id, &shape, &bvh, 0).unwrap();
     let opts = TrackOptions {
         contacts: Some(ContactOptions::default()),
+        without_feet: true,
         ..TrackOptions::default()
     };
     let rep = track_retarget(&model, &rt, &bvh, (0, None, 3), opts, &mut |_, _, _| {}).unwrap();
@@ -198,6 +195,7 @@ fn contact_prior_tracks_the_excerpt() {
     let frames = vec![(0, rt.params(&bvh, 0))];
     let no_rate = TrackOptions {
         contacts: Some(ContactOptions::default()),
+        without_feet: true,
         ..TrackOptions::default()
     };
     let e = track_generated(&model, &frames, no_rate, &mut |_, _, _| {}).unwrap_err();

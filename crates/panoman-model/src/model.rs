@@ -120,7 +120,7 @@ pub struct Motion {
 /// Keypoints as fixed sparse combinations of vertices (docs/formats.md §3).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct KeypointRows {
-    /// Keypoint names (TC-127 order when complete).
+    /// Keypoint names (TC-133 order when complete).
     pub names: Vec<String>,
     /// Per keypoint, `(vertex, weight)` pairs; the keypoint is `Σ w·x_v`.
     pub rows: Vec<Vec<(u32, f64)>>,

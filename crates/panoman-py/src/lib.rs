@@ -584,7 +584,8 @@ impl PyModel {
         run(py, || m.encode(&v, r.as_deref(), c)).map(|inner| PyParams { inner })
     }
 
-    /// The 127 TC-127 keypoints `(127, 3)` float64 metres of a mesh `(V, 3)`.
+    /// The model's keypoints `(133, 3)` float64 metres (TC-133; a model of the older layout
+    /// gives its 127) of a mesh `(V, 3)`.
     fn keypoints<'py>(
         &self,
         py: Python<'py>,
@@ -618,21 +619,21 @@ impl PyModel {
         Ok(out_points(py, &v))
     }
 
-    /// The six foot points as template vertex indices, a dict `{"l_big_toe": v, "l_small_toe":
-    /// v, "l_heel": v, "r_big_toe": …}` (picked on the default identity's rest soles): pass
-    /// foot detections (e.g. OpenPose BODY_25's 19–24) as `handles={v: xyz}` and the IK places
-    /// the feet. Raises `ValueError` for a model without an embedded rig.
-    fn foot_points(&self, py: Python<'_>) -> PyResult<std::collections::BTreeMap<String, u32>> {
+    /// The sole's big-toe, little-toe and heel vertices of each foot (the contact prior's
+    /// points; the foot keypoints are `l_big_toe` … `r_heel` of `keypoint_names`), a dict
+    /// `{"l_big_toe": v, …}` picked on the default identity's rest soles. Raises `ValueError`
+    /// for a model without an embedded rig.
+    fn sole_points(&self, py: Python<'_>) -> PyResult<std::collections::BTreeMap<String, u32>> {
         let m = &self.inner;
-        let v = run(py, || m.foot_points())?;
-        Ok(panoman::FOOT_POINT_NAMES
+        let v = run(py, || m.sole_points())?;
+        Ok(panoman::FEET_NAMES
             .iter()
             .zip(v)
             .map(|(n, v)| ((*n).to_string(), v))
             .collect())
     }
 
-    /// Keypoint names, TC-127 order (127 strings).
+    /// The model's keypoint names in order (TC-133: 133 strings).
     #[getter]
     fn keypoint_names(&self) -> Vec<String> {
         self.inner.keypoint_names().to_vec()
@@ -803,8 +804,23 @@ fn targets(
     normals: Option<&Bound<'_, PyAny>>,
     handles: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<Targets> {
-    let n_kp = panoman_human::keypoints::N_KEYPOINTS;
+    use panoman_human::keypoints::{N_KEYPOINTS, N_KEYPOINTS_TC127, tc127_to_tc133};
     let mut kp = KeypointsFile::default();
+    // Array rows → TC-133 indices: 133 rows in TC-133 order, or 127 in TC-127 order.
+    let index_of_row = |rows: usize, what: &str| -> PyResult<Vec<usize>> {
+        match rows {
+            N_KEYPOINTS => Ok((0..N_KEYPOINTS).collect()),
+            N_KEYPOINTS_TC127 => Ok(tc127_to_tc133().to_vec()),
+            _ => Err(invalid(
+                py,
+                format!(
+                    "{what}: expected ({N_KEYPOINTS}, …) (TC-133) or ({N_KEYPOINTS_TC127}, …) \
+                     (TC-127), got {rows} rows"
+                ),
+            )),
+        }
+    };
+    let mut rows_index: Option<Vec<usize>> = None;
     if let Some(k) = keypoints {
         if let Ok(d) = k.cast::<PyDict>() {
             for (name, p) in d.iter() {
@@ -816,8 +832,10 @@ fn targets(
                     .insert(i, v3_of(py, &p, &format!("keypoint '{name}'"))?);
             }
         } else {
-            let pts = points3(py, k, "keypoints", Some(n_kp))?;
-            kp.points = pts.into_iter().enumerate().collect();
+            let pts = points3(py, k, "keypoints", None)?;
+            let index = index_of_row(pts.len(), "keypoints")?;
+            kp.points = index.iter().copied().zip(pts).collect();
+            rows_index = Some(index);
         }
     }
     if let Some(w) = weights {
@@ -833,10 +851,24 @@ fn targets(
                 kp.weights.insert(i, v);
             }
         } else {
-            let w = vec1(py, w, "weights", Some(n_kp))?;
-            kp.weights = w
+            let w = vec1(py, w, "weights", None)?;
+            let index = match &rows_index {
+                Some(ix) if ix.len() != w.len() => {
+                    return Err(invalid(
+                        py,
+                        format!(
+                            "weights: expected an array of shape ({},), got [{}]",
+                            ix.len(),
+                            w.len()
+                        ),
+                    ));
+                }
+                Some(ix) => ix.clone(),
+                None => index_of_row(w.len(), "weights")?,
+            };
+            kp.weights = index
                 .into_iter()
-                .enumerate()
+                .zip(w)
                 .filter(|(i, _)| kp.points.contains_key(i))
                 .collect();
         }
@@ -1308,7 +1340,7 @@ impl PyGenerator {
     }
 }
 
-/// The 127 TC-127 keypoint names in order.
+/// The 133 TC-133 keypoint names in order (15 body, 6 feet, 70 face, 21 + 21 hands).
 #[pyfunction]
 fn keypoint_names() -> Vec<String> {
     panoman::keypoint_names().to_vec()

@@ -1,4 +1,4 @@
-//! 02: fit PanoMan and the LBS baseline to the 127 keypoints of a generated person, and
+//! 02: fit PanoMan and the LBS baseline to the 133 keypoints of a generated person, and
 //! compare both fits with the ground-truth mesh.
 //!
 //! `cargo run --release -p panoman --example 02_fit_keypoints [MODEL.safetensors]`

@@ -1,11 +1,8 @@
-//! Foot points: big toe, small toe and heel of each foot as vertices of the model's template —
-//! what OpenPose BODY_25 (`LBigToe`, `LSmallToe`, `LHeel`, …) and COCO-WholeBody add to a body
-//! layout, and what TC-127 lacks (its body stops at the ankles). Given as vertex handles
-//! ([`crate::Targets::handles`]), they place the feet: the IK fits handles as point targets
-//! (`docs/formats.md` §6.1), the shell fit as handles.
-//!
-//! Without foot points, the foot–floor contact prior ([`ContactPrior`]) constrains the feet of
-//! a tracked sequence from its ankle keypoints alone: feet detected as planted
+//! The foot–floor contact prior. The layout's six foot keypoints (big toe, little toe and heel
+//! of each foot, [`crate::FEET_NAMES`]) observe the feet; targets without them (the older TC-127
+//! layout, a detector that misses the feet) leave a foot's flexion free. The contact prior
+//! ([`ContactPrior`]) then constrains the feet of a tracked sequence from its ankle keypoints
+//! alone: feet detected as planted
 //! ([`FootContacts`]) get their soles held level ([`LevelPair`]s of [`Model::sole_levels`])
 //! and their heels and toes held where they landed ([`FootAnchors`]);
 //! docs/design/rig-and-ik.md §4.9.
@@ -19,19 +16,9 @@ use panoman_mesh::geom::{V3, dot, norm, scale, sub};
 use crate::error::{Error, Result};
 use crate::model::Model;
 
-/// The six foot points, in the order of [`foot_points`]: `l_big_toe`, `l_small_toe`,
-/// `l_heel`, `r_big_toe`, `r_small_toe`, `r_heel` ("left" is the character's left, +x; the
-/// OpenPose BODY_25 indices are 19–24 in this order).
-pub const FOOT_POINT_NAMES: [&str; 6] = [
-    "l_big_toe",
-    "l_small_toe",
-    "l_heel",
-    "r_big_toe",
-    "r_small_toe",
-    "r_heel",
-];
-
-/// The vertices of [`FOOT_POINT_NAMES`] on a standing rest mesh `rest` (`(V, 3)`, metres, Z
+/// The sole's big-toe, little-toe and heel vertices of each foot (the contact prior's
+/// points, in [`crate::FEET_NAMES`] order; not the foot keypoints, which sit at the toe tips and the
+/// back of the heel) on a standing rest mesh `rest` (`(V, 3)`, metres, Z
 /// up, facing −Y, left +X, feet flat; e.g. the default identity at rest): per foot the
 /// vertices within 3 cm of its lowest point (the sole), split at their mean |x| into a medial
 /// and a lateral half; the big toe is the medial half's most forward vertex (least y), the
@@ -40,7 +27,7 @@ pub const FOOT_POINT_NAMES: [&str; 6] = [
 /// # Errors
 /// [`Error::Invalid`] if a side of the mesh has no vertex or a sole no lateral half (not a
 /// body mesh).
-pub fn foot_points(rest: &[V3]) -> Result<[u32; 6]> {
+pub fn sole_points(rest: &[V3]) -> Result<[u32; 6]> {
     let mut out = [0u32; 6];
     for (k, side) in [1.0f64, -1.0].into_iter().enumerate() {
         let foot: Vec<usize> = (0..rest.len())
@@ -71,14 +58,14 @@ pub fn foot_points(rest: &[V3]) -> Result<[u32; 6]> {
 }
 
 impl Model {
-    /// The [`foot_points`] of this model's template, picked on the default identity's rest
-    /// mesh (all phenotype values ½) of the embedded rig, in [`FOOT_POINT_NAMES`] order.
+    /// The [`sole_points`] of this model's template, picked on the default identity's rest
+    /// mesh (all phenotype values ½) of the embedded rig, in [`crate::FEET_NAMES`] order.
     ///
     /// # Errors
     /// [`Error::Invalid`] for a model without an embedded rig (see `panoman embed-rig`) or on
     /// a topology the generator does not map to.
-    pub fn foot_points(&self) -> Result<[u32; 6]> {
-        foot_points(&self.default_rest()?)
+    pub fn sole_points(&self) -> Result<[u32; 6]> {
+        sole_points(&self.default_rest()?)
     }
 
     /// The default identity's rest mesh (all phenotype values ½, rest pose) of the embedded
@@ -141,7 +128,7 @@ impl Default for ContactOptions {
 /// a prior for the feet, whose flexion TC-127 does not observe (its body stops at the
 /// ankles). A planted foot stands on a level floor, so its heel and toes are at their rest
 /// heights relative to each other: per foot two level pairs (heel above big toe, heel above
-/// small toe, offsets those of the default identity's rest mesh, [`foot_points`]), given to
+/// small toe, offsets those of the default identity's rest mesh, [`sole_points`]), given to
 /// the skeletal IK with the frame's contact weight. Frames where a foot is off the floor get
 /// no prior for it.
 #[derive(Clone, Debug, PartialEq)]
@@ -261,15 +248,15 @@ impl FootContacts {
 
 impl Model {
     /// Per foot (left, right) the two sole [`LevelPair`]s of a flat-standing foot: heel above
-    /// big toe and heel above small toe ([`Model::foot_points`]), offsets their heights on the
+    /// big toe and heel above small toe ([`Model::sole_points`]), offsets their heights on the
     /// default identity's rest mesh (Z up, feet flat), `up` +Z, weight 1. See
     /// [`FootContacts`].
     ///
     /// # Errors
-    /// As [`Model::foot_points`].
+    /// As [`Model::sole_points`].
     pub fn sole_levels(&self) -> Result<[[LevelPair; 2]; 2]> {
         let rest = self.default_rest()?;
-        let p = foot_points(&rest)?;
+        let p = sole_points(&rest)?;
         let pair = |heel: u32, toe: u32| LevelPair {
             a: heel,
             b: toe,
@@ -285,7 +272,7 @@ impl Model {
 }
 
 /// Planted feet stay put: the anchors of a [`FootContacts`] sequence, kept by a tracker in
-/// frame order. When a foot comes down (contact weight ≥ ½) its three [`foot_points`] are
+/// frame order. When a foot comes down (contact weight ≥ ½) its three [`sole_points`] are
 /// anchored where that frame's fit put them; in the following frames while it stays down
 /// they are vertex handles at those positions (weight: the frame's contact weight × the
 /// options' weight), so a foot that the fit cannot see — TC-127 observes neither its
@@ -299,7 +286,7 @@ pub struct FootAnchors {
 
 impl FootAnchors {
     /// The anchor handles for a frame with contact weights `w` (`[left, right]`), foot
-    /// points `points` ([`Model::foot_points`]) and the contact options' `weight`.
+    /// points `points` ([`Model::sole_points`]) and the contact options' `weight`.
     pub fn handles(&self, w: [f64; 2], points: &[u32; 6], weight: f64) -> Vec<VertexHandle> {
         let mut out = Vec::new();
         for s in 0..2 {
@@ -351,7 +338,7 @@ pub struct ContactPrior {
     pub contacts: FootContacts,
     /// Per foot the sole level pairs ([`Model::sole_levels`]).
     pub soles: [[LevelPair; 2]; 2],
-    /// The foot points ([`Model::foot_points`]).
+    /// The foot points ([`Model::sole_points`]).
     pub points: [u32; 6],
     /// The anchors of the planted feet, from the fits so far.
     pub anchors: FootAnchors,
@@ -373,7 +360,7 @@ impl ContactPrior {
         Ok(ContactPrior {
             contacts: FootContacts::detect(ankles, options)?,
             soles: model.sole_levels()?,
-            points: model.foot_points()?,
+            points: model.sole_points()?,
             anchors: FootAnchors::default(),
             next: 0,
         })

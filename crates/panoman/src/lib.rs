@@ -4,7 +4,7 @@
 //! fitting, as one library: load a model once, then pose, encode, fit and track with it.
 //!
 //! - [`Model`]: a loaded model file (shape PCA α, six sparse localized RL/RA component blocks
-//!   β, correction and motion networks, TC-127 keypoint regressors, and the LBS rig of the
+//!   β, correction and motion networks, TC-133 keypoint regressors, and the LBS rig of the
 //!   fit's initializer). `pose` is `B_P(α, β)` (Eq. 5) through `g`; `encode` is its inverse.
 //! - [`Fitter`]: one frame fitted to [`Targets`] (keypoints with weights, vertex handles, a
 //!   point cloud) by skeletal IK of the rig and then the discrete-shell fit toward the
@@ -36,7 +36,7 @@
 //! let again = model.pose(&encoded, Correction::Apply)?;
 //! assert!(again.iter().zip(&mesh).all(|(a, b)| (a[2] - b[2]).abs() < 0.05));
 //!
-//! // Fit the mesh's 127 keypoints with PanoMan and with the LBS baseline.
+//! // Fit the mesh's 133 keypoints with PanoMan and with the LBS baseline.
 //! let targets = Targets::from_keypoints(&model.keypoints(&mesh)?);
 //! let mut fitter = Fitter::new(&model)?;
 //! let fit = fitter.fit(&targets, &FitRequest::default())?;
@@ -65,7 +65,7 @@ pub mod tracker;
 pub mod training;
 
 pub use error::{Error, Result};
-pub use feet::{ContactOptions, ContactPrior, FOOT_POINT_NAMES, foot_points};
+pub use feet::{ContactOptions, ContactPrior, sole_points};
 pub use fitter::{FitOutput, FitReport, FitRequest, Fitter, IkReport, IkStage, Method, MotionData};
 pub use generator::Generator;
 pub use model::{BlockInfo, BlockName, Correction, Encoder, Model};
@@ -73,7 +73,7 @@ pub use panoman_fit::fit::{GroupResidual, LevelPair, StageReport, VertexHandle};
 pub use panoman_fit::shape_calibration::{
     LENGTH_KNOBS, ShapeCalibration, ShapeCalibrationOptions, ShapeKnob,
 };
-pub use panoman_human::keypoints::{KeypointsFile, keypoint_names};
+pub use panoman_human::keypoints::{FEET_NAMES, KeypointGroup, KeypointsFile, keypoint_names};
 pub use panoman_human::outputs::OutputTopology;
 pub use panoman_human::params::{GeneratorParams, ShapeParams};
 pub use panoman_mesh::geom::V3;

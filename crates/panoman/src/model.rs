@@ -283,14 +283,15 @@ impl Model {
         self.inner().rig.is_some()
     }
 
-    /// The names of the model's keypoints (TC-127 order: 15 body, 70 face (iBUG-68 + two
-    /// pupils), 21 left hand, 21 right hand; see `docs/formats.md`).
+    /// The names of the model's keypoints (TC-133 order: 15 body, 6 feet, 70 face (iBUG-68 +
+    /// two pupils), 21 left hand, 21 right hand; see `docs/formats.md`; a model file of the
+    /// older TC-127 layout has no feet).
     pub fn keypoint_names(&self) -> &[String] {
         &self.inner().keypoints.names
     }
 
-    /// The keypoints of a mesh in the model's topology (`(127, 3)`, metres): each is a fixed
-    /// sparse linear combination of vertices.
+    /// The keypoints of a mesh in the model's topology (`(133, 3)`, metres, in
+    /// [`Model::keypoint_names`] order): each is a fixed sparse linear combination of vertices.
     ///
     /// # Errors
     /// [`Error::Invalid`] if `vertices` has the wrong count or non-finite values.

@@ -21,8 +21,8 @@ pub struct PointCloud {
 /// The targets of one fit (one frame).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Targets {
-    /// Keypoints: any subset of the 127 Total Capture keypoints (metres), each with a
-    /// weight (default 1; 0 skips it). The fit's initializer needs at least a few body ones.
+    /// Keypoints: any subset of the 133 TC-133 keypoints (metres), each with a weight
+    /// (default 1; 0 skips it). The fit's initializer needs at least a few body ones.
     pub keypoints: KeypointsFile,
     /// Vertex handles: template vertex → target position (metres), with a relative weight.
     pub handles: Vec<VertexHandle>,
@@ -35,15 +35,20 @@ pub struct Targets {
 }
 
 impl Targets {
-    /// All 127 keypoints in TC-127 order (e.g. [`crate::Model::keypoints`] of a mesh), weight 1.
+    /// Every keypoint of `positions` (e.g. [`crate::Model::keypoints`] of a mesh), weight 1:
+    /// 133 in TC-133 order, or 127 in the older TC-133 order (no feet).
+    ///
+    /// # Panics
+    /// For any other count ([`KeypointsFile::from_points`] returns the error instead).
     pub fn from_keypoints(positions: &[V3]) -> Targets {
         Targets {
-            keypoints: KeypointsFile::from_all(positions),
+            keypoints: KeypointsFile::from_points(positions)
+                .unwrap_or_else(|e| panic!("Targets::from_keypoints: {e}")),
             ..Default::default()
         }
     }
 
-    /// Keypoints by TC-127 name (`{"l_wrist": [x, y, z], …}`), weight 1.
+    /// Keypoints by TC-133 name (`{"l_wrist": [x, y, z], …}`), weight 1.
     ///
     /// # Errors
     /// [`Error::Invalid`] naming an unknown keypoint or a non-finite position.
@@ -63,7 +68,7 @@ impl Targets {
         })
     }
 
-    /// Reads a TC-127 keypoint file (`{"keypoints": {name: [x, y, z]}, "weights": {...}}`,
+    /// Reads a TC-133 keypoint file (`{"keypoints": {name: [x, y, z]}, "weights": {...}}`,
     /// see `docs/formats.md`).
     ///
     /// # Errors

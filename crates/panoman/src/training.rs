@@ -52,7 +52,7 @@ pub struct Trained {
 }
 
 /// Trains a model on the dataset in `data` (`panoman train`): the template, its regions and
-/// the TC-127 keypoint regressors come from the assets, and the LBS rig the fit's
+/// the TC-133 keypoint regressors come from the assets, and the LBS rig the fit's
 /// initializer needs is embedded in the model ([`PanoManModel::rig`]), so the model file
 /// alone can pose, encode, fit and track. `progress(stage)` names each stage as it starts.
 ///

@@ -18,7 +18,7 @@ use proptest::prelude::*;
 struct Fixture {
     model: Model,
     fitter: Mutex<Fitter>,
-    /// The keypoints of the mean person (127, metres).
+    /// The keypoints of the mean person (133, metres).
     mean_kp: Vec<V3>,
 }
 
@@ -99,12 +99,12 @@ proptest! {
 
     #[test]
     fn all_keypoints_at_one_point(p in point()) {
-        check(&kp((0..127).map(|i| (i, p))), false)?;
+        check(&kp((0..133).map(|i| (i, p))), false)?;
     }
 
     #[test]
     fn collinear_keypoints(p in point(), d in point()) {
-        check(&kp((0..127).map(|i| {
+        check(&kp((0..133).map(|i| {
             let t = i as f64 / 126.0;
             (i, [p[0] + t * d[0], p[1] + t * d[1], p[2] + t * d[2]])
         })), false)?;
@@ -128,13 +128,13 @@ proptest! {
     }
 
     #[test]
-    fn one_to_five_keypoints(ids in proptest::collection::btree_set(0usize..127, 1..=5)) {
+    fn one_to_five_keypoints(ids in proptest::collection::btree_set(0usize..133, 1..=5)) {
         let f = fixture();
         check(&kp(ids.into_iter().map(|i| (i, f.mean_kp[i]))), false)?;
     }
 
     #[test]
-    fn a_non_finite_coordinate(i in 0usize..127, c in 0usize..3, which in 0usize..3) {
+    fn a_non_finite_coordinate(i in 0usize..133, c in 0usize..3, which in 0usize..3) {
         let f = fixture();
         let bad = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY][which];
         let mut pts = f.mean_kp.clone();

@@ -271,7 +271,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         png2.display()
     );
 
-    println!("[9/9] fit the held-out person from its 127 TC keypoints (PanoMan and the LBS rig)");
+    println!("[9/9] fit the held-out person from its 133 TC keypoints (PanoMan and the LBS rig)");
     let kp = panoman_human::keypoints::KeypointsFile::from_all(&model.keypoints.evaluate(&target));
     let rig = panoman_fit::Rig::load(&assets, &model)?;
     let ik = rig.ik_solver()?;

@@ -412,7 +412,7 @@ CSV: components.csv.</figcaption></figure>
 <figure><img src="correction_ablation.png"><figcaption>Mean representation error without (0) and with (1)
 the correction MLP.</figcaption></figure>
 
-<h2>2. Fitting from TC-127 keypoints (Fig. 19–20)</h2>
+<h2>2. Fitting from TC-133 keypoints (Fig. 19–20)</h2>
 <p>{people} held-out people (identities and poses the model never saw), per-vertex error against the
 ground truth (mm).</p>
 <table><tr><th>method</th><th>all mean</th><th>body mean</th><th>face mean</th><th>hands mean</th><th>max</th></tr>
@@ -444,7 +444,7 @@ the composite posed from mixed β blocks (composite.params.json).</figcaption></
 <h2>6. Stress set: beyond the training sampler</h2>
 <p>Cases our generator makes outside the sampler the model was trained on (composites of body pose,
 gestures and expression; phenotypes at the edges; forearm twists up to 180°; a hand on the head and at
-the chin; a deep sit and a crouch), fitted from exact TC-127 keypoints. Errors in mm (PanoMan / LBS);
+the chin; a deep sit and a crouch), fitted from exact TC-133 keypoints. Errors in mm (PanoMan / LBS);
 steps: shell LM steps accepted/tried; Δ: largest distance between the PanoMan and LBS meshes (mm).
 Worst case: <b>{worst}</b>; cases above 20 mm: {o20p} PanoMan / {o20l} LBS; PanoMan more than 3 % above LBS:
 {o3}; flagged by the failure detector: {flagged}.</p>
@@ -454,7 +454,7 @@ Worst case: <b>{worst}</b>; cases above 20 mm: {o20p} PanoMan / {o20l} LBS; Pano
 per-vertex error from 0 (blue) to 30 mm (red); every case is rendered in <code>stress/</code>.</figcaption></figure>
 
 <h2>7. Timing (Table 1)</h2>
-<p>Cold fits from TC-127 keypoints, seconds on this machine; the paper reports 274.5 s per frame in total.
+<p>Cold fits from TC-133 keypoints, seconds on this machine; the paper reports 274.5 s per frame in total.
 Warm-started clip frames: median {wmed} s.</p>
 <table><tr><th>stage</th><th>min</th><th>median</th><th>max</th><th>runs</th></tr>{timing_rows}</table>
 </body></html>

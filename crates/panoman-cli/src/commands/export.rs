@@ -42,7 +42,7 @@ pub struct ExportArgs {
     /// Hold each frame instead of blending consecutive frames linearly.
     #[arg(long)]
     pub step: bool,
-    /// Keypoints (TC-127, OpenPose or Panoptic JSON, detected; cm for the latter two) shown
+    /// Keypoints (TC-133, OpenPose or Panoptic JSON, detected; cm for the latter two) shown
     /// as markers on a static mesh.
     #[arg(long, conflicts_with = "sequence")]
     pub keypoints: Option<PathBuf>,

@@ -1,4 +1,4 @@
-//! `panoman fit` and `panoman track`: PanoMan fitted to TC-127 keypoints (+ point cloud,
+//! `panoman fit` and `panoman track`: PanoMan fitted to TC-133 keypoints (+ point cloud,
 //! handles, parameter edits), one frame or a sequence; `--baseline lbs` fits the LBS rig alone.
 
 use anyhow::{Context, Result, anyhow};
@@ -69,19 +69,21 @@ impl UpAxis {
     after retrying the initializer, or an implausible shape; a one-line warning names why);\n\
     1 an error. Handles: {\"handles\": [{\"vertex\": 123, \"position\": [x, y, z],\n\
     \"weight\": 1}]}. --params fixes α and the β blocks it gives (parameter edits).\n\n\
-    Keypoints (TC-127 JSON): {\"keypoints\": {\"l_wrist\": [x, y, z], ...}, \"weights\": {\"l_wrist\": 0.5}}\n\
-    in metres, any subset of the 127 names (15 body, face_00..face_69 = iBUG-68 + 2 pupils, 2x21\n\
-    hand joints; full list and order in docs/formats.md §3); weights optional (default 1).\n\
+    Keypoints (TC-133 JSON): {\"keypoints\": {\"l_wrist\": [x, y, z], ...}, \"weights\": {\"l_wrist\": 0.5}}\n\
+    in metres, any subset of the 133 names (15 body, 6 feet: l_big_toe l_small_toe l_heel r_..., \n\
+    face_00..face_69 = iBUG-68 + 2 pupils, 2x21 hand joints; full list and order in\n\
+    docs/formats.md §3; TC-127 files are the same without the feet); weights optional (default 1).\n\
     params.json: alpha (shape), beta per block (body_l, face_l, hands_l, body_a, face_a,\n\
     hands_a), translation (metres), rotation (axis-angle vector, radians).")]
 pub struct FitArgs {
     /// Model file.
     #[arg(long)]
     pub model: PathBuf,
-    /// Target keypoints (any subset of TC-127, metres), or OpenPose / CMU Panoptic JSON.
+    /// Target keypoints (any subset of TC-133, metres), or OpenPose / CMU Panoptic JSON.
     #[arg(long)]
     pub keypoints: PathBuf,
-    /// Layout of the keypoint files: tc127, openpose or panoptic (default: detected).
+    /// Layout of the keypoint files: panoman (TC-133 or TC-133 names), openpose or panoptic
+    /// (default: detected).
     #[arg(long)]
     pub keypoints_format: Option<KeypointFormat>,
     /// Unit of OpenPose / Panoptic coordinates: m, cm or mm.
@@ -148,7 +150,8 @@ pub struct TrackArgs {
     /// fitter; the results are those of tracking them one by one).
     #[arg(long, default_value_t = 1)]
     pub jobs: usize,
-    /// Layout of the keypoint files: tc127, openpose or panoptic (default: detected).
+    /// Layout of the keypoint files: panoman (TC-133 or TC-133 names), openpose or panoptic
+    /// (default: detected).
     #[arg(long)]
     pub keypoints_format: Option<KeypointFormat>,
     /// Unit of OpenPose / Panoptic coordinates: m, cm or mm.
@@ -174,7 +177,7 @@ pub struct TrackArgs {
     /// six phenotype values fitted per frame.
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub calibrate_shape: usize,
-    /// Foot–floor contact prior (for keypoints without foot points, e.g. TC-127): a foot
+    /// Foot–floor contact prior (for keypoints without the foot points, e.g. TC-127): a foot
     /// whose ankle keypoint is within 2–5 cm of its lowest height in the sequence and slower
     /// than 0.25–0.6 m/s counts as planted; its sole is then held level (heel and toes at
     /// their rest heights) and its heel and toes stay where they landed. Needs --fps;
@@ -198,43 +201,17 @@ pub struct TrackArgs {
     pub assets: Option<PathBuf>,
 }
 
-/// The model's foot points, computed on first need (only a file with foot points needs them):
-/// `Err` keeps why they are unavailable (e.g. a model without an embedded rig).
-type FootPoints = std::cell::OnceCell<std::result::Result<[u32; 6], String>>;
-
-/// Keypoints of any supported layout (TC-127, OpenPose, CMU Panoptic; `panoman-interchange`).
-/// An OpenPose BODY_25 file's foot points (big toe, small toe, heel) become vertex handles on
-/// the model's [`Model::foot_points`] (their confidence as weight); where the model has none
-/// they are ignored with a warning that says why.
-fn read_keypoints(
-    path: &Path,
-    format: Option<KeypointFormat>,
-    unit: Unit,
-    model: &Model,
-    feet: &FootPoints,
-) -> Result<Targets> {
+/// Keypoints of any supported layout (panoman TC-133 or TC-127 JSON, OpenPose, CMU Panoptic;
+/// `panoman-interchange`). An OpenPose BODY_25 file's foot points (big toe, small toe, heel)
+/// are the layout's foot keypoints.
+fn read_keypoints(path: &Path, format: Option<KeypointFormat>, unit: Unit) -> Result<Targets> {
     let options = ImportOptions {
         unit,
         format,
         person: 0,
     };
-    let k = panoman_interchange::keypoints_in::read_keypoints_with_feet(path, &options)?;
-    let mut handles = Vec::new();
-    if k.feet.iter().any(Option::is_some) {
-        match feet.get_or_init(|| model.foot_points().map_err(|e| e.to_string())) {
-            Ok(v) => handles.extend(k.feet.iter().zip(v).filter_map(|(f, &vertex)| {
-                f.map(|(position, weight)| panoman::VertexHandle {
-                    vertex,
-                    position,
-                    weight,
-                })
-            })),
-            Err(why) => tracing::warn!("{}: foot points ignored ({why})", path.display()),
-        }
-    }
     Ok(Targets {
-        keypoints: k.keypoints,
-        handles,
+        keypoints: panoman_interchange::keypoints_in::read_keypoints(path, &options)?,
         ..Default::default()
     })
 }
@@ -296,13 +273,7 @@ fn write_params(path: &Path, out: &FitOutput, fitter: &Fitter) -> Result<()> {
 pub fn run(a: FitArgs) -> Result<()> {
     let t_setup = Instant::now();
     let model = Model::load(&a.model)?;
-    let mut targets = read_keypoints(
-        &a.keypoints,
-        a.keypoints_format,
-        a.keypoints_unit,
-        &model,
-        &FootPoints::new(),
-    )?;
+    let mut targets = read_keypoints(&a.keypoints, a.keypoints_format, a.keypoints_unit)?;
     if let Some(h) = &a.handles {
         targets.handles.extend(read_handles(h, model.n_vertices())?);
     }
@@ -496,10 +467,9 @@ fn track_sequence(
     t_setup: Instant,
     bar: Option<&indicatif::ProgressBar>,
 ) -> Result<SequenceSummary> {
-    let feet = FootPoints::new();
     let targets: Vec<Targets> = frames
         .iter()
-        .map(|p| read_keypoints(p, a.keypoints_format, a.keypoints_unit, model, &feet))
+        .map(|p| read_keypoints(p, a.keypoints_format, a.keypoints_unit))
         .collect::<Result<_>>()?;
     let req = FitRequest {
         method: if a.baseline.is_some() {

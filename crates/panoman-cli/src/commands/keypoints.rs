@@ -1,4 +1,4 @@
-//! `panoman keypoints`: the TC-127 keypoints of a mesh in template topology, from the
+//! `panoman keypoints`: the TC-133 keypoints of a mesh in template topology, from the
 //! template definitions (`panoman_human::keypoints`; `--model` comes with the model files).
 
 use anyhow::{Result, anyhow};
@@ -11,7 +11,7 @@ use std::time::Instant;
 
 /// Arguments of `panoman keypoints`.
 ///
-/// Example: `panoman keypoints --mesh posed.obj --out K.json` writes the 127 keypoints
+/// Example: `panoman keypoints --mesh posed.obj --out K.json` writes the 133 keypoints
 /// (`neck`, `nose`, …, `face_00`…`face_69`, `lhand_00`…, `rhand_00`…) of a 13,348-vertex
 /// mesh as `{"units": "m", "keypoints": {name: [x, y, z]}, "weights": {name: 1.0}}`.
 #[derive(Args, Debug)]

@@ -7,7 +7,7 @@
 //!   `jitter_m_per_s2`: mean acceleration of the solved mesh's vertices and of the model's
 //!   markers beside the observed markers' own).
 //! * **CMU `01_01`**: retargeted to the rig (shape fitted on 24 frames), its generated meshes
-//!   tracked from their TC-127 keypoints by both methods ([`track_retarget`]), with the limb
+//!   tracked from their keypoints (TC-127, and TC-133 with the feet) by both methods ([`track_retarget`]), with the limb
 //!   lengths calibrated from 8 frames: from the keypoints alone, with the foot–floor contact
 //!   prior ([`ContactOptions`]), and with six foot points.
 //! * **Pictures**: per marker capture the PanoMan frame with the largest fitted residual and
@@ -280,7 +280,7 @@ fn render_markers(
         .save_png(&dir.join(format!("markers_{name}.png")))
 }
 
-/// The CMU clip: retargeted (shape fitted on 24 frames), tracked from TC-127 keypoints with
+/// The CMU clip: retargeted (shape fitted on 24 frames), tracked from TC-127 and TC-133 keypoints with
 /// the limb lengths calibrated from 8 frames: alone, with the foot–floor contact prior, and
 /// with the six foot points.
 fn cmu_tracking(
@@ -303,21 +303,22 @@ fn cmu_tracking(
     let mut out = serde_json::Map::new();
     let mut panels = Vec::new();
     let mut worst: Option<TrackReport> = None;
-    // (key, foot points, contact prior, panel title); the last one's worst frame is rendered.
+    // (key, without the feet, contact prior, panel title); the last one's worst frame is
+    // rendered.
     let variants = [
-        ("tc127", false, false, "CMU 01_01 from TC-127"),
+        ("tc127", true, false, "CMU 01_01 from TC-127"),
         (
             "tc127_contacts",
-            false,
+            true,
             true,
             "CMU 01_01 from TC-127 + contact prior",
         ),
-        ("tc127_feet", true, false, "CMU 01_01 from TC-127 + feet"),
+        ("tc133", false, false, "CMU 01_01 from TC-133 (feet)"),
     ];
-    for (key, feet, contacts, title) in variants {
+    for (key, without_feet, contacts, title) in variants {
         eprintln!("CMU 01_01: tracking, {key} …");
         let opts = TrackOptions {
-            feet,
+            without_feet,
             shape_frames: 8,
             contacts: contacts.then(ContactOptions::default),
             ..TrackOptions::default()
@@ -336,7 +337,7 @@ fn cmu_tracking(
         out.insert(
             key.into(),
             json!({"panoman": rep.panoman, "lbs": rep.lbs, "shape_calibration": rep.calibration,
-                "foot_points": rep.foot_points, "contacts": rep.contacts, "per_frame": rep.frames}),
+                "layout": rep.layout, "contacts": rep.contacts, "per_frame": rep.frames}),
         );
         let s = |f: fn(&panoman_mocap::track::TrackFrame) -> f64, name: &str| Series {
             name: name.into(),

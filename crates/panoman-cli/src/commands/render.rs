@@ -3,6 +3,7 @@
 use crate::render::{PALETTE, Rgb, Scene, View};
 use anyhow::{Result, anyhow, bail};
 use clap::Args;
+use panoman_human::keypoints::{KeypointGroup as Group, keypoint_index};
 use panoman_mesh::geom::{MAX_COORDINATE, is_in_bounds};
 use panoman_mesh::io;
 use std::path::{Path, PathBuf};
@@ -41,36 +42,21 @@ pub struct RenderArgs {
     pub height: u32,
 }
 
-/// Keypoint groups of the TC-127 layout, with their dot colour and radius (pixels).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Group {
-    Body,
-    Face,
-    LeftHand,
-    RightHand,
-}
-
-impl Group {
-    fn style(self) -> (Rgb, f64) {
-        match self {
-            Group::Body => ([220, 40, 40], 4.5),
-            Group::Face => ([30, 150, 60], 2.0),
-            Group::LeftHand => ([40, 90, 225], 2.5),
-            Group::RightHand => ([240, 140, 0], 2.5),
-        }
+/// Dot colour and radius (pixels) of a keypoint group.
+fn style(g: Group) -> (Rgb, f64) {
+    match g {
+        Group::Body => ([220, 40, 40], 4.5),
+        Group::Feet => ([150, 40, 190], 4.0),
+        Group::Face => ([30, 150, 60], 2.0),
+        Group::LeftHand => ([40, 90, 225], 2.5),
+        Group::RightHand => ([240, 140, 0], 2.5),
     }
 }
 
-/// The group of a TC-127 keypoint name (the layout of `panoman_human::keypoints`), `None`
+/// The group of a TC-133 keypoint name (the layout of `panoman_human::keypoints`), `None`
 /// for an unknown name.
 fn group_of(name: &str) -> Option<Group> {
-    use panoman_human::keypoints::{KeypointGroup, keypoint_index};
-    Some(match KeypointGroup::of(keypoint_index(name)?) {
-        KeypointGroup::Body => Group::Body,
-        KeypointGroup::Face => Group::Face,
-        KeypointGroup::LeftHand => Group::LeftHand,
-        KeypointGroup::RightHand => Group::RightHand,
-    })
+    Some(Group::of(keypoint_index(name)?))
 }
 
 /// Reads a keypoint file: points grouped for drawing.
@@ -162,14 +148,14 @@ pub fn run(a: RenderArgs) -> Result<()> {
     for (i, m) in meshes.iter().enumerate() {
         scene.add_mesh(m, PALETTE[i % PALETTE.len()]);
         if let Some(kps) = keypoints.get(i) {
-            for g in [Group::Body, Group::Face, Group::LeftHand, Group::RightHand] {
+            for g in Group::ALL {
                 let pts: Vec<[f64; 3]> = kps
                     .iter()
                     .filter(|(h, _)| *h == g)
                     .map(|(_, p)| *p)
                     .collect();
                 if !pts.is_empty() {
-                    let (color, radius) = g.style();
+                    let (color, radius) = style(g);
                     scene.add_points(&pts, color, radius);
                 }
             }
@@ -198,6 +184,7 @@ mod tests {
     #[test]
     fn keypoint_groups() {
         assert_eq!(group_of("neck"), Some(Group::Body));
+        assert_eq!(group_of("l_heel"), Some(Group::Feet));
         assert_eq!(group_of("face_69"), Some(Group::Face));
         assert_eq!(group_of("face_70"), None);
         assert_eq!(group_of("lhand_00"), Some(Group::LeftHand));

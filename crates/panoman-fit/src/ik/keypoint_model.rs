@@ -36,7 +36,7 @@ pub(super) struct Pair {
 /// One row of a [`Skinned`] model (a keypoint of the set, or a point target).
 #[derive(Clone, Debug)]
 pub(super) struct KpModel {
-    /// TC-127 index of the name, if it is one.
+    /// TC-133 index of the name, if it is one.
     pub(super) tc: Option<usize>,
     pub(super) pairs: std::ops::Range<usize>,
     /// `A_k`: every bone skinning a vertex of the keypoint and its ancestors, ascending.
@@ -744,7 +744,7 @@ pub(super) fn frame_units(
 }
 
 /// The skinned model of the keypoint rows (pairs, ancestors, face-unit terms from the unit
-/// bases `unit_dense`) and the set row of every TC-127 keypoint.
+/// bases `unit_dense`) and the set row of every TC-133 keypoint.
 pub(super) fn skinned_keypoints(
     anny_rows: &[Vec<(u32, f64)>],
     names: &[String],

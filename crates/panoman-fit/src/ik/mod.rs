@@ -1,4 +1,4 @@
-//! Inverse kinematics of the LBS rig to TC-127 keypoints: the generator's parameters
+//! Inverse kinematics of the LBS rig to TC-133 keypoints: the generator's parameters
 //! (global rigid motion, local bone Euler angles, phenotype, face units) that best explain
 //! a set of target keypoints.
 //!
@@ -364,7 +364,7 @@ pub struct IkStageReport {
 /// Distance of one fitted keypoint to its target.
 #[derive(Clone, Debug, PartialEq)]
 pub struct IkResidual {
-    /// TC-127 index.
+    /// TC-133 index.
     pub index: usize,
     /// Keypoint name.
     pub name: String,
@@ -392,9 +392,9 @@ pub struct IkResult {
     pub keypoints: Vec<V3>,
     /// One residual per target, in target order.
     pub residuals: Vec<IkResidual>,
-    /// Mean residual per group in mm (`KeypointGroup::ALL` order: body, face, left hand,
-    /// right hand), `None` for a group without targets.
-    pub group_mean_mm: [Option<f64>; 4],
+    /// Mean residual per group in mm (`KeypointGroup::ALL` order: body, feet, face, left
+    /// hand, right hand), `None` for a group without targets.
+    pub group_mean_mm: [Option<f64>; 5],
     /// Total Levenberg–Marquardt iterations (both starts of the final stage counted).
     pub iterations: usize,
     /// The stages in order (skipped stages are left out).
@@ -417,8 +417,7 @@ impl IkResult {
 
     /// Mean residual of a group in mm (`None` without targets in the group).
     pub fn group_mean(&self, group: KeypointGroup) -> Option<f64> {
-        let i = KeypointGroup::ALL.iter().position(|g| *g == group)?;
-        self.group_mean_mm[i]
+        self.group_mean_mm[group.position()]
     }
 
     /// Mean residual over all targets in mm.

@@ -242,7 +242,7 @@ impl IkSolver {
             .collect())
     }
 
-    /// The solver's keypoints on a mesh of its topology, by TC-127 index (`None` for a
+    /// The solver's keypoints on a mesh of its topology, by TC-133 index (`None` for a
     /// keypoint its set does not define).
     ///
     /// # Errors
@@ -739,16 +739,15 @@ fn keypoint_residuals(
     targets: &IkTargets,
     rows: &[Row],
     keypoints: &[V3],
-) -> (Vec<IkResidual>, [Option<f64>; 4]) {
-    let mut sums = [(0.0, 0usize); 4];
+) -> (Vec<IkResidual>, [Option<f64>; 5]) {
+    let mut sums = [(0.0, 0usize); 5];
     let residuals: Vec<IkResidual> = targets
         .targets
         .iter()
         .zip(rows)
         .map(|(t, r)| {
             let distance = norm(sub(keypoints[r.row], t.position));
-            let g = KeypointGroup::of(t.index);
-            let gi = KeypointGroup::ALL.iter().position(|x| *x == g).unwrap_or(0);
+            let gi = KeypointGroup::of(t.index).position();
             sums[gi].0 += distance;
             sums[gi].1 += 1;
             IkResidual {

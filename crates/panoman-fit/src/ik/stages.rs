@@ -13,7 +13,7 @@ use super::solver::IkSolver;
 use super::targets::IkTargets;
 use super::{IkConfig, IkStageReport, N_UNITS};
 
-/// TC-127 indices of the torso keypoints: neck, body_center, shoulders, hips.
+/// TC-133 indices of the torso keypoints: neck, body_center, shoulders, hips.
 pub(super) const TORSO_KEYPOINTS: [usize; 6] = [0, 2, 3, 6, 9, 12];
 
 /// Bones of the `torso` stage.

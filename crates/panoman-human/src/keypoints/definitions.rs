@@ -89,6 +89,15 @@ pub(super) fn hand_joint(i: usize) -> (String, bool) {
     }
 }
 
+/// Direction of the ray from the ankle (head of `foot.L/R`) whose exit through the skin is
+/// the heel keypoint, in the rest frame (Z up, the body facing −Y): 45° backwards and down, the
+/// back-bottom of the heel that OpenPose's `Heel` and MediaPipe's heel mark.
+pub const HEEL_DIRECTION: V3 = [
+    0.0,
+    std::f64::consts::FRAC_1_SQRT_2,
+    -std::f64::consts::FRAC_1_SQRT_2,
+];
+
 /// Settings of the regressor fit (see the module docs).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -160,7 +169,7 @@ pub struct GroupError {
 /// Held-out error of one regressed keypoint.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct KeypointError {
-    /// TC-127 index.
+    /// TC-133 index.
     pub index: usize,
     /// Mean Euclidean error in millimetres over the held-out samples.
     pub mean_mm: f64,
@@ -168,7 +177,7 @@ pub struct KeypointError {
     pub max_mm: f64,
 }
 
-/// The TC-127 definitions on both topologies, with the held-out accuracy of the regressors.
+/// The TC-133 definitions on both topologies, with the held-out accuracy of the regressors.
 #[derive(Clone, Debug)]
 pub struct KeypointDefinitions {
     /// Rows on the full template (13,348 vertices).
@@ -233,7 +242,7 @@ pub(super) struct Builder<'a> {
     pub(super) small: &'a SmallTopology,
     /// Anny topology → full template.
     pub(super) map: crate::outputs::TopologyMap,
-    /// Regressed keypoints: (TC-127 index, target).
+    /// Regressed keypoints: (TC-133 index, target).
     pub(super) targets: Vec<(usize, Target)>,
 }
 
@@ -374,7 +383,7 @@ pub(super) fn fit_regressor(
     w.iter().all(|x| x.is_finite()).then_some(w)
 }
 
-/// Per-group error statistics of the regressed keypoints `targets` (TC-127 indices) given
+/// Per-group error statistics of the regressed keypoints `targets` (TC-133 indices) given
 /// per-sample errors `err[sample][target]` in metres.
 pub(super) fn group_errors(
     targets: &[(usize, Target)],
@@ -426,7 +435,7 @@ pub(super) fn group_errors(
     out
 }
 
-/// Builds the TC-127 definitions on both topologies (see the module docs): surface points
+/// Builds the TC-133 definitions on both topologies (see the module docs): surface points
 /// picked on the default identity's rest mesh, regressors fitted on `config.n_train`
 /// generated samples and evaluated on `config.n_test` held-out ones.
 ///
@@ -482,6 +491,26 @@ pub fn build_definitions(
             })?;
             surface[offset + i] = Some(hit);
         }
+    }
+    let body_faces = regions.mask(Part::Body, 0).face_ids();
+    for (k, side) in ["L", "R"].into_iter().enumerate() {
+        let base = FEET_OFFSET + 3 * k;
+        for (i, (b, what)) in [("toe1-2", "big toe"), ("toe5-3", "little toe")]
+            .into_iter()
+            .enumerate()
+        {
+            let c = bone(&format!("{b}.{side}"))?;
+            let d = sub(tails[c], heads[c]);
+            let (hit, _) = surf.ray_hit(heads[c], d, &body_faces).ok_or_else(|| {
+                HumanError::Invalid(format!("no {what} tip beyond bone `{b}.{side}`"))
+            })?;
+            surface[base + i] = Some(hit);
+        }
+        let ankle = heads[bone(&format!("foot.{side}"))?];
+        let (hit, _) = surf
+            .ray_hit(ankle, HEEL_DIRECTION, &body_faces)
+            .ok_or_else(|| HumanError::Invalid(format!("no heel below `foot.{side}`")))?;
+        surface[base + 2] = Some(hit);
     }
 
     // Regressed keypoints and their candidate vertices.
@@ -561,7 +590,7 @@ pub fn build_definitions(
     for (i, t) in &targets {
         let p = t.eval(&rest_posed);
         let (af, as_, kf, ks) = match KeypointGroup::of(*i) {
-            KeypointGroup::Body => {
+            KeypointGroup::Body | KeypointGroup::Feet => {
                 let w = match names[*i].as_str() {
                     "l_wrist" => 1,
                     "r_wrist" => 2,
@@ -639,7 +668,7 @@ pub fn build_definitions(
             .map(|(c, cand)| {
                 let cols: Vec<usize> = cand.iter().map(|&v| col(v)).collect();
                 let ridge = match KeypointGroup::of(builder.targets[c].0) {
-                    KeypointGroup::Body => config.ridge_body,
+                    KeypointGroup::Body | KeypointGroup::Feet => config.ridge_body,
                     KeypointGroup::Face => config.ridge_pupil,
                     _ => config.ridge_hand,
                 };
@@ -707,6 +736,7 @@ pub fn build_definitions(
         small_faces_of(Part::Face),
         small_faces_of(Part::LeftHand),
         small_faces_of(Part::RightHand),
+        small_faces_of(Part::Body),
     ];
     let mut kinds = vec![KeypointKind::Surface; N_KEYPOINTS];
     let mut rows_full: Vec<Vec<(u32, f64)>> = vec![Vec::new(); N_KEYPOINTS];
@@ -716,6 +746,7 @@ pub fn build_definitions(
         rows_full[k] = binding_row(b);
         let subset = match KeypointGroup::of(k) {
             KeypointGroup::Body | KeypointGroup::Face => &small_faces[0],
+            KeypointGroup::Feet => &small_faces[3],
             KeypointGroup::LeftHand => &small_faces[1],
             KeypointGroup::RightHand => &small_faces[2],
         };

@@ -1,10 +1,13 @@
-//! TC-127 keypoints (docs/formats.md §3): 15 body joints (CMU Panoptic order), 70 face
-//! landmarks (iBUG 300-W 68 + 2 pupils) and 2 × 21 hand joints, each a fixed sparse linear
-//! combination of template vertices ([`KeypointSet`]).
+//! TC-133 keypoints (docs/formats.md §3): 15 body joints (CMU Panoptic order), Total Capture's
+//! 6 foot points (big toe, little toe, heel per foot), 70 face landmarks (iBUG 300-W 68 + 2
+//! pupils) and 2 × 21 hand joints, each a fixed sparse linear combination of template
+//! vertices ([`KeypointSet`]). The layout before the feet, TC-127, is TC-133 without
+//! [`FEET_NAMES`] ([`tc127_names`], [`KeypointsFile::from_points`]).
 //!
 //! # Layout
 //! [`keypoint_names`]: `neck, nose, body_center, l_shoulder, l_elbow, l_wrist, l_hip, l_knee,
-//! l_ankle, r_shoulder, …, r_ankle`, then `face_00`…`face_69` (300-W order: jaw 0–16, brows
+//! l_ankle, r_shoulder, …, r_ankle`, then `l_big_toe, l_small_toe, l_heel, r_big_toe,
+//! r_small_toe, r_heel`, then `face_00`…`face_69` (300-W order: jaw 0–16, brows
 //! 17–26, nose 27–35, eyes 36–47 with 36–41 the subject's right eye, lips 48–67; `face_68`
 //! right pupil, `face_69` left pupil), `lhand_00`…`lhand_20`, `rhand_00`…`rhand_20` (0 wrist;
 //! thumb 1–4 CMC, MCP, IP, tip; index 5–8, middle 9–12, ring 13–16, little 17–20: MCP, PIP,
@@ -54,10 +57,13 @@
 //! [`KeypointDefinitions::held_out_small`] carry the numbers of a build).
 //!
 //! **Surface points** ([`KeypointKind::Surface`]: face landmarks 0–67, `nose` = `face_30`,
-//! the fingertips) are barycentric points of template triangles (3-vertex rows), picked on
-//! the default identity's rest mesh (all phenotype values 0.5, no expression). Fingertips:
-//! the ray from the head of the distal bone (`finger1-3` for the thumb, `fingerN-3`) along
-//! the bone meets the hand's skin. Face landmarks ([`face_landmarks`]): with x lateral, y
+//! the fingertips, the foot points) are barycentric points of template triangles (3-vertex
+//! rows), picked on the default identity's rest mesh (all phenotype values 0.5, no
+//! expression). Fingertips: the ray from the head of the distal bone (`finger1-3` for the
+//! thumb, `fingerN-3`) along the bone meets the hand's skin. Toe tips the same with the big
+//! toe's `toe1-2` and the little toe's `toe5-3` on the body's skin; the heel is where the ray
+//! from the ankle (head of `foot.L/R`) 45° backwards and down ([`HEEL_DIRECTION`]) leaves
+//! the skin: the back-bottom of the heel. Face landmarks ([`face_landmarks`]): with x lateral, y
 //! depth (the face looks along −y) and z up, on the `head` skin label (cavities excluded):
 //!
 //! * **Eyes 36–47**: the lid margin is the loop between the `head` and `eye_cavity.R/L`
@@ -169,23 +175,43 @@ pub const BODY_NAMES: [&str; 15] = [
     "r_ankle",
 ];
 
+/// The six foot keypoints of Total Capture (supplementary §2.1; OpenPose BODY_25 19–24 in
+/// this order): tip of the big toe, tip of the little toe and the heel, left foot first.
+pub const FEET_NAMES: [&str; 6] = [
+    "l_big_toe",
+    "l_small_toe",
+    "l_heel",
+    "r_big_toe",
+    "r_small_toe",
+    "r_heel",
+];
+
 /// Number of body keypoints.
 pub const N_BODY: usize = 15;
+/// Number of foot keypoints.
+pub const N_FEET: usize = 6;
 /// Number of face keypoints (300-W 68 + 2 pupils).
 pub const N_FACE: usize = 70;
 /// Number of keypoints per hand.
 pub const N_HAND: usize = 21;
-/// Total number of keypoints (127).
-pub const N_KEYPOINTS: usize = N_BODY + N_FACE + 2 * N_HAND;
+/// Total number of keypoints of the TC-133 layout (133).
+pub const N_KEYPOINTS: usize = N_BODY + N_FEET + N_FACE + 2 * N_HAND;
+/// Index of `l_big_toe`.
+pub const FEET_OFFSET: usize = N_BODY;
 /// Index of `face_00`.
-pub const FACE_OFFSET: usize = N_BODY;
+pub const FACE_OFFSET: usize = N_BODY + N_FEET;
 /// Index of `lhand_00`.
-pub const LHAND_OFFSET: usize = N_BODY + N_FACE;
+pub const LHAND_OFFSET: usize = FACE_OFFSET + N_FACE;
 /// Index of `rhand_00`.
-pub const RHAND_OFFSET: usize = N_BODY + N_FACE + N_HAND;
+pub const RHAND_OFFSET: usize = LHAND_OFFSET + N_HAND;
+/// Name of the layout, as files and reports give it.
+pub const LAYOUT_NAME: &str = "TC-133";
+/// Number of keypoints of the older TC-127 layout (TC-133 without the feet).
+pub const N_KEYPOINTS_TC127: usize = N_KEYPOINTS - N_FEET;
 
 static NAMES: LazyLock<Vec<String>> = LazyLock::new(|| {
     let mut v: Vec<String> = BODY_NAMES.iter().map(|s| s.to_string()).collect();
+    v.extend(FEET_NAMES.iter().map(|s| s.to_string()));
     v.extend((0..N_FACE).map(|i| format!("face_{i:02}")));
     v.extend((0..N_HAND).map(|i| format!("lhand_{i:02}")));
     v.extend((0..N_HAND).map(|i| format!("rhand_{i:02}")));
@@ -200,22 +226,46 @@ static INDEX: LazyLock<HashMap<&'static str, usize>> = LazyLock::new(|| {
         .collect()
 });
 
-/// The 127 keypoint names in TC-127 order: [`BODY_NAMES`], `face_00`…`face_69`,
-/// `lhand_00`…`lhand_20`, `rhand_00`…`rhand_20`.
+/// The 133 keypoint names in TC-133 order: [`BODY_NAMES`], [`FEET_NAMES`],
+/// `face_00`…`face_69`, `lhand_00`…`lhand_20`, `rhand_00`…`rhand_20`.
 pub fn keypoint_names() -> &'static [String] {
     &NAMES
 }
 
-/// TC-127 index of a keypoint name.
+/// The TC-133 index of each TC-127 keypoint (TC-127 is TC-133 without [`FEET_NAMES`]; its
+/// names are the same).
+pub fn tc127_to_tc133() -> &'static [usize; N_KEYPOINTS_TC127] {
+    static MAP: LazyLock<[usize; N_KEYPOINTS_TC127]> = LazyLock::new(|| {
+        let mut m = [0; N_KEYPOINTS_TC127];
+        let kept = (0..N_KEYPOINTS).filter(|i| !(FEET_OFFSET..FACE_OFFSET).contains(i));
+        for (slot, i) in m.iter_mut().zip(kept) {
+            *slot = i;
+        }
+        m
+    });
+    &MAP
+}
+
+/// The 127 names of the TC-127 layout in its order ([`keypoint_names`] without the feet).
+pub fn tc127_names() -> Vec<&'static str> {
+    tc127_to_tc133()
+        .iter()
+        .map(|&i| keypoint_names()[i].as_str())
+        .collect()
+}
+
+/// TC-133 index of a keypoint name.
 pub fn keypoint_index(name: &str) -> Option<usize> {
     INDEX.get(name).copied()
 }
 
-/// The four keypoint groups (reports give errors per group).
+/// The five keypoint groups (reports give errors per group).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum KeypointGroup {
     /// The 15 body keypoints.
     Body,
+    /// The 6 foot keypoints.
+    Feet,
     /// The 70 face keypoints.
     Face,
     /// The 21 left-hand keypoints.
@@ -225,22 +275,25 @@ pub enum KeypointGroup {
 }
 
 impl KeypointGroup {
-    /// All groups in TC-127 order.
-    pub const ALL: [KeypointGroup; 4] = [
+    /// All groups in TC-133 order.
+    pub const ALL: [KeypointGroup; 5] = [
         KeypointGroup::Body,
+        KeypointGroup::Feet,
         KeypointGroup::Face,
         KeypointGroup::LeftHand,
         KeypointGroup::RightHand,
     ];
 
-    /// The group of a TC-127 index.
+    /// The group of a TC-133 index.
     ///
     /// # Panics
     /// If `index >= N_KEYPOINTS`.
     pub fn of(index: usize) -> KeypointGroup {
         assert!(index < N_KEYPOINTS, "keypoint index {index} out of range");
-        if index < FACE_OFFSET {
+        if index < FEET_OFFSET {
             KeypointGroup::Body
+        } else if index < FACE_OFFSET {
+            KeypointGroup::Feet
         } else if index < LHAND_OFFSET {
             KeypointGroup::Face
         } else if index < RHAND_OFFSET {
@@ -250,20 +303,27 @@ impl KeypointGroup {
         }
     }
 
-    /// Name used in reports: `body`, `face`, `left_hand`, `right_hand`.
+    /// Position in [`KeypointGroup::ALL`].
+    pub fn position(self) -> usize {
+        self as usize
+    }
+
+    /// Name used in reports: `body`, `feet`, `face`, `left_hand`, `right_hand`.
     pub fn name(self) -> &'static str {
         match self {
             KeypointGroup::Body => "body",
+            KeypointGroup::Feet => "feet",
             KeypointGroup::Face => "face",
             KeypointGroup::LeftHand => "left_hand",
             KeypointGroup::RightHand => "right_hand",
         }
     }
 
-    /// TC-127 indices of the group.
+    /// TC-133 indices of the group.
     pub fn range(self) -> std::ops::Range<usize> {
         match self {
-            KeypointGroup::Body => 0..FACE_OFFSET,
+            KeypointGroup::Body => 0..FEET_OFFSET,
+            KeypointGroup::Feet => FEET_OFFSET..FACE_OFFSET,
             KeypointGroup::Face => FACE_OFFSET..LHAND_OFFSET,
             KeypointGroup::LeftHand => LHAND_OFFSET..RHAND_OFFSET,
             KeypointGroup::RightHand => RHAND_OFFSET..N_KEYPOINTS,
@@ -278,7 +338,7 @@ impl KeypointGroup {
 /// keypoint `k` is `Σ_(v, w) ∈ rows[k] w · positions[v]`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct KeypointSet {
-    /// Keypoint names (TC-127 order for the sets built here).
+    /// Keypoint names (TC-133 order for the sets built here).
     pub names: Vec<String>,
     /// Per keypoint, `(vertex, weight)` pairs; weights sum to 1.
     pub rows: Vec<Vec<(u32, f64)>>,
@@ -396,26 +456,48 @@ fn eval_row(row: &[(u32, f64)], positions: &[V3]) -> V3 {
 
 /// Observed keypoints as read from or written to a keypoints JSON file:
 /// `{"units": "m", "keypoints": {name: [x, y, z]}, "weights": {name: w}}` with any subset of
-/// the TC-127 names.
+/// the TC-133 names (so files of the TC-127 layout read as they are, without the feet).
 #[derive(Clone, Debug, PartialEq, Default)]
 pub struct KeypointsFile {
-    /// Position of each given keypoint (metres), by TC-127 index.
+    /// Position of each given keypoint (metres), by TC-133 index.
     pub points: BTreeMap<usize, V3>,
     /// Weight of each given keypoint (default 1); only for keypoints in `points`.
     pub weights: BTreeMap<usize, f64>,
 }
 
 impl KeypointsFile {
-    /// All 127 keypoints of `points` (TC-127 order) with unit weights.
+    /// All 133 keypoints of `points` (TC-133 order) with unit weights.
     ///
     /// # Panics
     /// If `points.len() != N_KEYPOINTS`.
     pub fn from_all(points: &[V3]) -> KeypointsFile {
-        assert_eq!(points.len(), N_KEYPOINTS, "one point per TC-127 keypoint");
+        assert_eq!(points.len(), N_KEYPOINTS, "one point per TC-133 keypoint");
         KeypointsFile {
             points: points.iter().copied().enumerate().collect(),
             weights: (0..N_KEYPOINTS).map(|i| (i, 1.0)).collect(),
         }
+    }
+
+    /// One point per keypoint of either layout, with unit weights: 133 points in TC-133
+    /// order, or 127 in the older TC-127 order ([`tc127_names`]: the feet absent).
+    ///
+    /// # Errors
+    /// Any other count.
+    pub fn from_points(points: &[V3]) -> Result<KeypointsFile> {
+        let index: Vec<usize> = match points.len() {
+            N_KEYPOINTS => (0..N_KEYPOINTS).collect(),
+            N_KEYPOINTS_TC127 => tc127_to_tc133().to_vec(),
+            n => {
+                return Err(HumanError::Invalid(format!(
+                    "expected {N_KEYPOINTS} keypoints (TC-133) or {N_KEYPOINTS_TC127} (TC-127), \
+                     got {n}"
+                )));
+            }
+        };
+        Ok(KeypointsFile {
+            points: index.iter().copied().zip(points.iter().copied()).collect(),
+            weights: index.iter().map(|&i| (i, 1.0)).collect(),
+        })
     }
 
     /// Weight of keypoint `index` (1 if the file gives none).
@@ -528,7 +610,7 @@ impl KeypointsFile {
         Ok(out)
     }
 
-    /// The JSON text (keys in TC-127 order, coordinates printed so that they read back
+    /// The JSON text (keys in TC-133 order, coordinates printed so that they read back
     /// exactly).
     ///
     /// # Errors

@@ -1,4 +1,4 @@
-//! Held-out people fitted from exact and noisy TC-127 keypoints (Fig. 19–20).
+//! Held-out people fitted from exact and noisy TC-133 keypoints (Fig. 19–20).
 use std::collections::BTreeMap;
 use std::path::Path;
 

@@ -1,5 +1,5 @@
 //! The paper's experiments on open data (`panoman eval`): representation error and component
-//! curves (Fig. 7, 18), fits of held-out people from exact and noisy TC-127 keypoints
+//! curves (Fig. 7, 18), fits of held-out people from exact and noisy TC-133 keypoints
 //! (Fig. 19–20), a held-out motion clip tracked frame after frame, the twist study (Fig. 1,
 //! 13), a composite motion (Fig. 16), the stress set (cases beyond the training sampler,
 //! per case, PanoMan beside the LBS baseline) and stage timings (Table 1).

@@ -3,7 +3,7 @@
 //! expression at once), phenotypes at the edges of the sampler, forearm twists of 120–180°
 //! (the sampler stops at ±30°), a hand on the head and a hand at the chin (found by a search
 //! of the arm's angles, beyond the sampler's ranges), a deep sit and a crouch. Each case is
-//! fitted from its exact TC-127 keypoints by the LBS rig (the IK) and by PanoMan (the shell
+//! fitted from its exact TC-133 keypoints by the LBS rig (the IK) and by PanoMan (the shell
 //! fit from that IK), and reported side by side with the per-vertex error, the keypoint
 //! residual, what the shell stage did (steps tried/accepted) and the failure detector's
 //! verdict ([`panoman_fit::quality::Verdict`]: converged or the reason, and whether the

@@ -17,7 +17,7 @@ fn nan_if_null<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
 ///
 /// - `representation`: held-out representation error per part (`body`, `face`, `hands`:
 ///   [`panoman_model::train::PartError`]), paper Fig. 7 / 18;
-/// - `fit_held_out`: fits from TC-127 keypoints ([`HeldOutFits`]), Fig. 19–20;
+/// - `fit_held_out`: fits from TC-133 keypoints ([`HeldOutFits`]), Fig. 19–20;
 /// - `clip`: a held-out motion clip, PanoMan tracked vs the LBS rig per frame ([`ClipSummary`]);
 /// - `twist`: the twist study ([`TwistSummary`]), Fig. 1 / 13;
 /// - `composite`: which rows the composite motion was built from, or `null` ([`CompositeRows`]);
@@ -112,7 +112,7 @@ impl StressSummary {
     }
 }
 
-/// One case of the stress set, fitted from its exact TC-127 keypoints.
+/// One case of the stress set, fitted from its exact TC-133 keypoints.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct StressCase {
     /// Its name (`composite_0`, `old_slim_woman`, `twist_forearm_150`, `hand_on_head`, …).
@@ -121,7 +121,7 @@ pub struct StressCase {
     pub kind: String,
     /// Per-vertex errors against the ground truth (mm).
     pub errors: PerMethod<PartErrors>,
-    /// Mean keypoint residual over the 127 keypoints (mm).
+    /// Mean keypoint residual over the 133 keypoints (mm).
     pub keypoint_residual_mm: PerMethod<f64>,
     /// Shell LM steps tried over the fit's stages.
     pub shell_steps_tried: usize,
@@ -202,7 +202,7 @@ impl MedianMinMax {
     }
 }
 
-/// `fit_held_out`: held-out people fitted from their TC-127 keypoints (cold fits).
+/// `fit_held_out`: held-out people fitted from their TC-133 keypoints (cold fits).
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct HeldOutFits {
     /// Exact keypoints: mean over the people of the per-vertex errors, per part.
