@@ -34,6 +34,6 @@ def person(model, seed):
 
 @pytest.fixture(scope="session")
 def target(model):
-    """A posed mesh and its 127 keypoints (metres)."""
+    """A posed mesh and its 133 keypoints (metres)."""
     mesh = person(model, 1)
     return mesh, model.keypoints(mesh)

@@ -31,12 +31,12 @@ def test_fit_keypoints(model, fitter, target):
 def test_fit_named_keypoints_and_weights(model, fitter, target):
     _, kp = target
     names = model.keypoint_names
-    named = {n: tuple(kp[i]) for i, n in enumerate(names) if i < BODY or i >= 85}
+    named = {n: tuple(kp[i]) for i, n in enumerate(names) if i < BODY or i >= 91}
     fit = fitter.fit(keypoints=named, weights={names[0]: 0.5})
     assert set(fit.report["keypoint_residuals"]) >= {"body"}
     assert body_mm(fit) < 10.0
-    w = np.ones(127, dtype=np.float32)
-    w[BODY:85] = 0.0
+    w = np.ones(133, dtype=np.float32)
+    w[BODY:91] = 0.0
     fit_w = fitter.fit(keypoints=kp, weights=w)
     assert body_mm(fit_w) < 10.0
 
@@ -60,22 +60,35 @@ def test_fit_handles_and_points(model, fitter, target):
     assert np.abs(scan.vertices - mesh).mean() < 0.02
 
 
-def test_foot_points_as_handles_place_the_feet(model, fitter, target):
+def test_foot_keypoints_place_the_feet_and_tc127_arrays_still_fit(model, fitter, target):
     mesh, kp = target
-    feet = model.foot_points()
-    assert sorted(feet) == sorted(
-        ["l_big_toe", "l_small_toe", "l_heel", "r_big_toe", "r_small_toe", "r_heel"]
-    )
-    assert len(set(feet.values())) == 6
-    # The heels lifted 3 cm (toes down): the LBS fit follows them only through the IK.
-    target_feet = {v: mesh[v] + ([0.0, 0.0, 0.03] if "heel" in n else 0.0) for n, v in feet.items()}
-    fit = fitter.fit(keypoints=kp, handles=target_feet, method="lbs")
+    names = model.keypoint_names
+    feet = [names.index(n) for n in
+            ("l_big_toe", "l_small_toe", "l_heel", "r_big_toe", "r_small_toe", "r_heel")]
+    assert feet == list(range(15, 21)) and model.keypoint_names == panoman.keypoint_names()
+    soles = model.sole_points()
+    assert sorted(soles) == sorted(names[i] for i in feet) and len(set(soles.values())) == 6
+    # The heel keypoints lifted 3 cm (toes down): the LBS fit follows them through the IK.
+    lifted = kp.copy()
+    for i in (17, 20):
+        lifted[i, 2] += 0.03
+    fit = fitter.fit(keypoints=lifted, method="lbs")
     plain = fitter.fit(keypoints=kp, method="lbs")
-    for n in ("l_heel", "r_heel"):
-        v = feet[n]
-        with_feet = np.linalg.norm(fit.vertices[v] - target_feet[v])
-        without = np.linalg.norm(plain.vertices[v] - target_feet[v])
-        assert without > 0.02 and with_feet < 0.5 * without, (n, without, with_feet)
+    got = model.keypoints(fit.vertices)
+    was = model.keypoints(plain.vertices)
+    for i in (17, 20):
+        with_lift = np.linalg.norm(got[i] - lifted[i])
+        without = np.linalg.norm(was[i] - lifted[i])
+        assert without > 0.02 and with_lift < 0.5 * without, (names[i], without, with_lift)
+    assert "feet" in fit.report["keypoint_residuals"]
+    # A (127, 3) array of the TC-127 layout (no feet) still fits, as the same keypoints by name.
+    old = np.delete(kp, feet, axis=0)
+    assert old.shape == (127, 3)
+    a = fitter.fit(keypoints=old, method="lbs")
+    b = fitter.fit(keypoints={n: tuple(kp[i]) for i, n in enumerate(names) if i not in feet},
+                   method="lbs")
+    assert np.array_equal(a.vertices, b.vertices)
+    assert "feet" not in a.report["keypoint_residuals"]
 
 
 def test_fit_result_pickles(fitter, target):

@@ -19,7 +19,7 @@ def test_load_and_properties(model, model_path):
     assert faces.dtype == np.int64 and faces.shape[1] == 3
     assert faces.min() == 0 and faces.max() == model.n_vertices - 1
     names = model.keypoint_names
-    assert len(names) == 127 and names == panoman.keypoint_names()
+    assert len(names) == 133 and names == panoman.keypoint_names()
     parts = model.edge_parts
     assert parts.dtype == np.uint8 and set(np.unique(parts)) <= {0, 1, 2, 3}
     vparts = model.vertex_parts
@@ -123,7 +123,7 @@ def test_encode_round_trip(model):
 
 def test_keypoints(model, target):
     mesh, kp = target
-    assert kp.shape == (127, 3) and kp.dtype == np.float64
+    assert kp.shape == (133, 3) and kp.dtype == np.float64
     shifted = model.keypoints(mesh + [0.0, 0.0, 1.0])
     assert np.allclose(shifted - kp, [0.0, 0.0, 1.0])
 

@@ -14,7 +14,7 @@ Example::
     import panoman
     model = panoman.Model.load(panoman.training.small_model())
     mesh = model.pose()                           # (V, 3) metres: the mean shape
-    kp = model.keypoints(mesh)                    # (127, 3)
+    kp = model.keypoints(mesh)                    # (133, 3)
     fit = panoman.Fitter(model).fit(keypoints=kp)
     print(fit.report["keypoint_residuals"]["body"]["mean_mm"])
 """

