@@ -40,6 +40,10 @@ pub struct EvalArgs {
     /// Seed of the held-out clip and keypoint noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Run one experiment only: `stress` (the stress set: writes stress.json, a per-case and
+    /// per-region table on stdout, stress/NAME.png and stress_worst.png).
+    #[arg(long, value_parser = ["stress"])]
+    pub only: Option<String>,
     /// Asset directory.
     #[arg(long)]
     pub assets: Option<PathBuf>,
@@ -56,6 +60,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
     };
     let assets = crate::util::open_assets(a.assets.as_deref())?;
     std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
+    if a.only.is_some() {
+        return stress_only(&a, &cfg, &assets, t_all);
+    }
     let output = {
         let pb = indicatif::ProgressBar::new_spinner();
         pb.enable_steady_tick(Duration::from_millis(150));
@@ -89,6 +96,65 @@ pub fn run(a: EvalArgs) -> Result<()> {
         s.fit_held_out.exact.panoman.body_mean,
         s.fit_held_out.exact.lbs.body_mean,
         s.fit_held_out.people
+    );
+    Ok(())
+}
+
+/// `panoman eval --only stress`: the stress set alone, `stress.json`, the renders and a table
+/// per case and region (PanoMan / LBS, mm).
+fn stress_only(
+    a: &EvalArgs,
+    cfg: &EvalConfig,
+    assets: &panoman_human::assets::AssetDir,
+    t_all: Instant,
+) -> Result<()> {
+    let mut on_progress = |p: EvalProgress| {
+        if let EvalProgress::Detail(what) = p {
+            eprintln!("  eval: {what} ({:.0} s)", t_all.elapsed().as_secs_f64());
+        }
+    };
+    let out = panoman::eval::run_stress(cfg, assets, &mut on_progress)?;
+    let s = &out.summary;
+    let faces = panoman::Model::load(&a.model)?.faces().to_vec();
+    stress_renders(&a.out, &faces, &out.meshes, &s.worst_case)?;
+    write_text(
+        &a.out.join("stress.json"),
+        &(serde_json::to_string_pretty(&serde_json::to_value(s)?)? + "\n"),
+    )?;
+    let names = panoman::eval::REGION_NAMES;
+    println!(
+        "{:<18} {:<13} {:>15}  {}",
+        "case",
+        "kind",
+        "all (P / L)",
+        names.map(|n| format!("{n:>15}")).join(" ")
+    );
+    for c in &s.cases {
+        let (p, l) = (c.regions.panoman.values(), c.regions.lbs.values());
+        let cells: Vec<String> = p
+            .iter()
+            .zip(&l)
+            .map(|(p, l)| format!("{:>15}", format!("{p:.2} / {l:.2}")))
+            .collect();
+        println!(
+            "{:<18} {:<13} {:>15}  {}{}",
+            c.name,
+            c.kind,
+            format!(
+                "{:.2} / {:.2}",
+                c.errors.panoman.all_mean, c.errors.lbs.all_mean
+            ),
+            cells.join(" "),
+            if c.converged { "" } else { "  (flagged)" }
+        );
+    }
+    println!(
+        "mean {:.2} / {:.2} mm; worst {}; {}: {:.0} s",
+        s.mean.panoman.all_mean,
+        s.mean.lbs.all_mean,
+        s.worst_case,
+        a.out.join("stress.json").display(),
+        t_all.elapsed().as_secs_f64()
     );
     Ok(())
 }
@@ -292,7 +358,12 @@ fn renders(dir: &Path, o: &EvalOutput) -> Result<()> {
             View::Front,
         )?;
     }
-    stress_renders(dir, o)?;
+    stress_renders(
+        dir,
+        o.model.faces(),
+        &o.meshes.stress,
+        &o.summary.stress.worst_case,
+    )?;
     if let Some(c) = &o.meshes.composite {
         c.params.write(&dir.join("composite.params.json"))?;
         let parts: Vec<_> = c.posed.iter().map(|x| (mesh(x), None)).collect();
@@ -303,14 +374,18 @@ fn renders(dir: &Path, o: &EvalOutput) -> Result<()> {
 
 /// The stress set: `stress/NAME.png` per case and `stress_worst.png` (ground truth, PanoMan,
 /// LBS, coloured by per-vertex error, 0–30 mm).
-fn stress_renders(dir: &Path, o: &EvalOutput) -> Result<()> {
-    let faces = o.model.faces();
+fn stress_renders(
+    dir: &Path,
+    faces: &[[u32; 3]],
+    meshes: &[(String, panoman::eval::MeshTriple)],
+    worst_case: &str,
+) -> Result<()> {
     let mesh = |x: &[V3]| TriMesh::new(x.to_vec(), faces.to_vec());
-    if !o.meshes.stress.is_empty() {
+    if !meshes.is_empty() {
         std::fs::create_dir_all(dir.join("stress"))
             .with_context(|| format!("{}: cannot create", dir.join("stress").display()))?;
     }
-    for (name, t) in &o.meshes.stress {
+    for (name, t) in meshes {
         let colors = |x: &[V3]| -> Vec<Rgb> {
             x.iter()
                 .zip(&t.truth)
@@ -327,7 +402,7 @@ fn stress_renders(dir: &Path, o: &EvalOutput) -> Result<()> {
             &parts,
             View::Front,
         )?;
-        if *name == o.summary.stress.worst_case {
+        if name == worst_case {
             save_render(&dir.join("stress_worst.png"), &parts, View::Front)?;
         }
     }
@@ -501,6 +576,17 @@ fn stress_table(st: &StressSummary, f: &dyn Fn(f64) -> String) -> String {
             c.shell_steps_tried,
             f(c.differs_from_lbs_mm),
             c.reason.as_deref().unwrap_or("converged"),
+        );
+        let (rp, rl) = (c.regions.panoman.values(), c.regions.lbs.values());
+        let by_region: Vec<String> = panoman::eval::REGION_NAMES
+            .iter()
+            .zip(rp.iter().zip(&rl))
+            .map(|(n, (p, l))| format!("{n} {}", pair(*p, *l)))
+            .collect();
+        let _ = write!(
+            rows,
+            "<tr><td></td><td colspan=\"9\">by region, mm (PanoMan / LBS): {}</td></tr>",
+            by_region.join(", ")
         );
         if let Some(t) = &c.twist {
             let _ = write!(

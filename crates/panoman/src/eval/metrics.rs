@@ -109,6 +109,118 @@ pub(crate) fn part_errors(x: &[V3], truth: &[V3], g: &Groups) -> PartErrors {
     }
 }
 
+/// The six regions of the whole-body report: feet, legs, torso, arms, hands, face.
+pub const REGION_NAMES: [&str; 6] = ["feet", "legs", "torso", "arms", "hands", "face"];
+
+/// Mean per-vertex error (mm) per region of [`REGION_NAMES`], in that order.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RegionErrors {
+    /// Feet: vertices skinned mostly by `foot` or a toe bone.
+    pub feet: f64,
+    /// Legs: mostly `upperleg*` / `lowerleg*`.
+    pub legs: f64,
+    /// Torso: the rest of the body part (root, pelvis, spine, clavicles, shoulders, neck).
+    pub torso: f64,
+    /// Arms: mostly `upperarm*` / `lowerarm*` (the hands' own vertices excluded).
+    pub arms: f64,
+    /// Both hands (the hand parts).
+    pub hands: f64,
+    /// The face part.
+    pub face: f64,
+}
+
+impl RegionErrors {
+    /// The values in [`REGION_NAMES`] order.
+    pub fn values(&self) -> [f64; 6] {
+        [
+            self.feet, self.legs, self.torso, self.arms, self.hands, self.face,
+        ]
+    }
+}
+
+/// The vertices of each region of [`REGION_NAMES`] on a model's topology.
+#[derive(Clone, Debug)]
+pub struct BodyRegions {
+    /// Per region, its vertex ids (ascending).
+    pub vertices: [Vec<u32>; 6],
+}
+
+impl BodyRegions {
+    /// Regions of `topology`'s vertices: hands and face from `regions`' parts; a body-part
+    /// vertex goes to the region of the bone that skins it most (the generator's skin weights
+    /// carried onto the topology through `map` as one-hot region indicators, the largest
+    /// winning).
+    pub(crate) fn of_rig(
+        generator: &panoman_human::generator::Generator,
+        map: &panoman_human::outputs::TopologyMap,
+        topology: panoman_human::outputs::OutputTopology,
+        regions: &Regions,
+    ) -> BodyRegions {
+        let names = generator.bone_names();
+        let region_of_bone = |b: usize| -> usize {
+            let n = names[b].as_str();
+            if n.starts_with("foot") || n.starts_with("toe") {
+                0
+            } else if n.starts_with("upperleg") || n.starts_with("lowerleg") {
+                1
+            } else if n.starts_with("upperarm") || n.starts_with("lowerarm") {
+                3
+            } else {
+                2
+            }
+        };
+        let skin = generator.skin_weights();
+        let n_anny = skin.offsets.len() - 1;
+        // One-hot indicators of feet / legs / torso and of arms (two 3-vectors per vertex).
+        let (mut a, mut b) = (vec![[0.0; 3]; n_anny], vec![[0.0; 3]; n_anny]);
+        for k in 0..n_anny {
+            let row = skin.offsets[k] as usize..skin.offsets[k + 1] as usize;
+            let best = row
+                .max_by(|&i, &j| skin.weights[i].total_cmp(&skin.weights[j]))
+                .map_or(2, |i| region_of_bone(skin.bones[i] as usize));
+            if best < 3 {
+                a[k][best] = 1.0;
+            } else {
+                b[k][0] = 1.0;
+            }
+        }
+        let (a, b) = (map.map(topology, &a), map.map(topology, &b));
+        let mut vertices: [Vec<u32>; 6] = Default::default();
+        for (v, part) in regions.vertex_part.iter().enumerate() {
+            let r = match part {
+                Part::LeftHand | Part::RightHand => 4,
+                Part::Face => 5,
+                Part::Body => {
+                    let w = [a[v][0], a[v][1], a[v][2], b[v][0]];
+                    (0..4).max_by(|&i, &j| w[i].total_cmp(&w[j])).unwrap_or(2)
+                }
+            };
+            vertices[r].push(v as u32);
+        }
+        BodyRegions { vertices }
+    }
+
+    /// Mean per-vertex error (mm) of `x` against `truth` per region.
+    pub fn errors(&self, x: &[V3], truth: &[V3]) -> RegionErrors {
+        let m = |vs: &[u32]| {
+            1e3 * vs
+                .iter()
+                .map(|&v| norm(sub(x[v as usize], truth[v as usize])))
+                .sum::<f64>()
+                / vs.len().max(1) as f64
+        };
+        let v = &self.vertices;
+        RegionErrors {
+            feet: m(&v[0]),
+            legs: m(&v[1]),
+            torso: m(&v[2]),
+            arms: m(&v[3]),
+            hands: m(&v[4]),
+            face: m(&v[5]),
+        }
+    }
+}
+
 /// Means of the means and max of the maxima.
 pub fn mean_of(xs: &[PartErrors]) -> PartErrors {
     let n = xs.len().max(1) as f64;

@@ -38,7 +38,7 @@ mod timing;
 mod twist;
 
 pub use clip::ClipFrame;
-pub use metrics::{Groups, PartErrors, mean_of};
+pub use metrics::{BodyRegions, Groups, PartErrors, REGION_NAMES, RegionErrors, mean_of};
 pub use summary::*;
 
 /// The sizes of an evaluation.
@@ -62,13 +62,15 @@ pub struct EvalPreset {
     pub curve_rows: usize,
     /// Stress set: whole-body composites (body pose + gestures + expression).
     pub stress_composites: usize,
+    /// Stress set: whole-body composites over the generator's full joint ranges.
+    pub stress_whole_body: usize,
     /// Stress set: phenotypes at the sampler's edges (at most 5).
     pub stress_extremes: usize,
     /// Stress set: forearm twists (degrees).
     pub stress_twists_deg: Vec<f64>,
     /// Stress set: contact cases (hand on head, hand at chin; at most 2).
     pub stress_contacts: usize,
-    /// Stress set: postures (deep sit, crouch; at most 2).
+    /// Stress set: postures (deep sit, crouch, kneel, a raised foot, crossed legs; at most 5).
     pub stress_postures: usize,
 }
 
@@ -85,10 +87,11 @@ impl EvalPreset {
             repr_gn: true,
             curve_rows: 8,
             stress_composites: 6,
+            stress_whole_body: 12,
             stress_extremes: 5,
             stress_twists_deg: vec![120.0, 150.0, 170.0, 180.0],
             stress_contacts: 2,
-            stress_postures: 2,
+            stress_postures: 5,
         }
     }
 
@@ -104,6 +107,7 @@ impl EvalPreset {
             repr_gn: false,
             curve_rows: 2,
             stress_composites: 1,
+            stress_whole_body: 1,
             stress_extremes: 1,
             stress_twists_deg: vec![150.0],
             stress_contacts: 1,
@@ -220,6 +224,7 @@ pub(crate) struct Bench {
     pub(crate) ds: Dataset,
     pub(crate) regions: Regions,
     pub(crate) groups: metrics::Groups,
+    pub(crate) body_regions: metrics::BodyRegions,
     pub(crate) rig: Rig,
     pub(crate) ik: IkSolver,
     pub(crate) fitter: ShellFitter,
@@ -255,6 +260,8 @@ impl Bench {
         let groups = metrics::Groups::of(&regions);
         // The rig from the assets (as the figures were first measured), not the embedded one.
         let rig = Rig::load(assets, &pm)?;
+        let body_regions =
+            metrics::BodyRegions::of_rig(&rig.generator, &rig.map, rig.topology, &regions);
         let ik = rig.ik_solver()?;
         let fitter = ShellFitter::new(pm)?;
         Ok(Bench {
@@ -262,6 +269,7 @@ impl Bench {
             ds,
             regions,
             groups,
+            body_regions,
             rig,
             ik,
             fitter,
@@ -278,6 +286,35 @@ impl Bench {
             .filter(|&r| ds.kind[r] == kind && held.contains(&ds.identity[r]))
             .collect()
     }
+}
+
+/// The stress set alone ([`run_all`]'s last experiment): its summary and, per case, the
+/// ground truth and both fits.
+pub struct StressOutput {
+    /// Every case, their means and the worst case.
+    pub summary: StressSummary,
+    /// Per case (in order) its name and meshes (metres, the model's topology).
+    pub meshes: Vec<(String, MeshTriple)>,
+}
+
+/// Runs only the stress set of `cfg.preset` on `cfg.model` (`cfg.data` is opened as by
+/// [`run_all`]); `progress` hears each case.
+///
+/// # Errors
+/// Those of [`run_all`].
+pub fn run_stress(
+    cfg: &EvalConfig,
+    assets: &AssetDir,
+    progress: &mut dyn FnMut(EvalProgress),
+) -> Result<StressOutput> {
+    progress(EvalProgress::Experiment("loading the model, data and rig"));
+    let mut b = Bench::open(cfg, assets)?;
+    progress(EvalProgress::Experiment("stress set"));
+    let run = stress::run(&mut b, &cfg.preset, cfg.seed, progress)?;
+    Ok(StressOutput {
+        summary: run.summary,
+        meshes: run.meshes,
+    })
 }
 
 /// Runs every experiment (see the module docs) on `cfg.model` and its dataset `cfg.data`;

@@ -1,8 +1,11 @@
 //! The stress set (issue 15): people and poses made by our own generator *outside* what the
-//! model was trained on — whole-body composites (body pose, both hands' gestures and a facial
-//! expression at once), phenotypes at the edges of the sampler, forearm twists of 120–180°
+//! model was trained on — composites (body pose, both hands' gestures and a facial
+//! expression at once), whole-body composites (every body joint uniform over the generator's
+//! full ranges, so the legs and feet move as much as the arms), phenotypes at the edges of the sampler, forearm twists of 120–180°
 //! (the sampler stops at ±30°), a hand on the head and a hand at the chin (found by a search
-//! of the arm's angles, beyond the sampler's ranges), a deep sit and a crouch. Each case is
+//! of the arm's angles, beyond the sampler's ranges), a deep sit, a crouch, a kneel, a raised
+//! foot and crossed legs. Every case reports its error per region (feet, legs, torso, arms,
+//! hands, face; [`super::metrics::BodyRegions`]). Each case is
 //! fitted from its exact TC-133 keypoints by the LBS rig (the IK) and by PanoMan (the shell
 //! fit from that IK), and reported side by side with the per-vertex error, the keypoint
 //! residual, what the shell stage did (steps tried/accepted) and the failure detector's
@@ -20,8 +23,8 @@ use panoman_human::params::ShapeParams;
 use panoman_human::phenotype::Phenotype;
 use panoman_human::regions::Part;
 use panoman_human::sampling::{
-    BodyPoseSampler, BoneMap, ExpressionSampler, HandSampler, IdentitySampler, Theta,
-    anny_age_of_years, posable_bones, stream_rng,
+    BODY_BONES, BodyPoseSampler, BoneMap, ExpressionSampler, HandSampler, IdentitySampler, Theta,
+    anny_age_of_years, bone_range, posable_bones, stream_rng, uniform_in,
 };
 use panoman_mesh::geom::{V3, add, dot, norm, scale, sub};
 use rand_chacha::rand_core::RngCore;
@@ -69,6 +72,25 @@ fn composite_theta(rng: &mut impl RngCore, shape: &mut ShapeParams) -> Theta {
     th
 }
 
+/// A whole-body composite: every body bone's angles uniform over the generator's full
+/// ranges ([`bone_range`]: spine, neck, head, clavicles, shoulders, arms, the hips' flexion,
+/// abduction and roll about the leg, knees, the ankles' flexion, inversion and turn, the limbs'
+/// twists to their limits), so that the legs and feet move as much as the arms; both hands'
+/// gestures and a facial expression on top.
+fn whole_body_theta(rng: &mut impl RngCore, shape: &mut ShapeParams) -> Result<Theta> {
+    let mut th = composite_theta(rng, shape);
+    for bone in BODY_BONES {
+        let Some(range) = bone_range(bone) else {
+            continue;
+        };
+        let s = slot(bone)?;
+        for (a, [lo, hi]) in range.into_iter().enumerate() {
+            th.deg[s][a] = uniform_in(rng, lo, hi);
+        }
+    }
+    Ok(th)
+}
+
 /// The phenotypes at the sampler's edges (name, phenotype).
 fn extreme_phenotypes() -> Vec<(&'static str, Phenotype)> {
     let p = |gender, years: f64, muscle, weight, height| Phenotype {
@@ -103,6 +125,18 @@ fn specs(preset: &EvalPreset, seed: u64) -> Result<Vec<Spec>> {
         out.push(Spec {
             name: format!("composite_{i}"),
             kind: "composite",
+            shape,
+            theta,
+            twist_deg: None,
+        });
+    }
+    for i in 0..preset.stress_whole_body {
+        let mut rng = stream_rng(seed, STRESS_DOMAIN, 2000 + i as u64);
+        let mut shape = IdentitySampler::default().sample(&mut rng).shape;
+        let theta = whole_body_theta(&mut rng, &mut shape)?;
+        out.push(Spec {
+            name: format!("whole_body_{i}"),
+            kind: "whole-body",
             shape,
             theta,
             twist_deg: None,
@@ -146,23 +180,42 @@ fn specs(preset: &EvalPreset, seed: u64) -> Result<Vec<Spec>> {
             twist_deg: Some(ang),
         });
     }
-    for name in ["sit_deep", "crouch"]
+    for name in ["sit_deep", "crouch", "kneel", "foot_raised", "legs_crossed"]
         .into_iter()
         .take(preset.stress_postures)
     {
         let mut rng = next_rng();
         let shape = IdentitySampler::default().sample(&mut rng).shape;
         let mut theta = BodyPoseSampler.sample(&mut rng);
-        // Hip flexion is −x, knee flexion +x (the sampler's conventions), beyond its ranges.
-        let (hip, knee, ankle) = if name == "crouch" {
-            (-125.0, 140.0, 30.0)
-        } else {
-            (-100.0, 100.0, 0.0)
+        // Hip flexion is −x, abduction +z on the left; knee flexion +x; the foot's flexion
+        // (toes down) +x, its inversion y (the sampler's conventions, right side mirrored as
+        // (x, −y, −z)). Per side: [hip (x, y, z)], knee x, [foot (x, y, z)].
+        type Leg = ([f64; 3], f64, [f64; 3]);
+        let legs: [Leg; 2] = match name {
+            "crouch" => [([-125.0, 0.0, 0.0], 140.0, [30.0, 0.0, 0.0]); 2],
+            "sit_deep" => [([-100.0, 0.0, 0.0], 100.0, [0.0, 0.0, 0.0]); 2],
+            // On the right knee, the left foot forward and flat, the right toes bent under.
+            "kneel" => [
+                ([-95.0, 0.0, 5.0], 95.0, [-10.0, 0.0, 0.0]),
+                ([10.0, 0.0, 0.0], 110.0, [35.0, 0.0, 0.0]),
+            ],
+            // The left foot raised in front, rolled out and pointed and turned in.
+            "foot_raised" => [
+                ([-60.0, 25.0, 10.0], 80.0, [40.0, 10.0, 15.0]),
+                ([0.0, 0.0, 0.0], 0.0, [0.0, 0.0, 0.0]),
+            ],
+            // The left leg crossed over the right: flexed, adducted and rolled in.
+            _ => [
+                ([-35.0, -25.0, -30.0], 20.0, [15.0, -10.0, 0.0]),
+                ([-5.0, 10.0, 0.0], 5.0, [0.0, 0.0, 0.0]),
+            ],
         };
-        for side in ["L", "R"] {
-            theta.deg[slot(&format!("upperleg01.{side}"))?][0] = hip;
+        for (side, (hip, knee, foot)) in ["L", "R"].into_iter().zip(legs) {
+            let m = if side == "L" { 1.0 } else { -1.0 };
+            let mirror = |v: [f64; 3]| [v[0], m * v[1], m * v[2]];
+            theta.deg[slot(&format!("upperleg01.{side}"))?] = mirror(hip);
             theta.deg[slot(&format!("lowerleg01.{side}"))?][0] = knee;
-            theta.deg[slot(&format!("foot.{side}"))?][0] = ankle;
+            theta.deg[slot(&format!("foot.{side}"))?] = mirror(foot);
         }
         out.push(Spec {
             name: name.into(),
@@ -386,7 +439,7 @@ fn run_case(b: &mut Bench, spec: &Spec) -> Result<(StressCase, MeshTriple)> {
     let rest = b.rig.map.map(b.rig.topology, id.rest_vertices());
     let (kp, truth) = posed_keypoints(b, &id, &bones, &spec.theta);
     let c = Constraints {
-        keypoints: KeypointsFile::from_all(&kp),
+        keypoints: KeypointsFile::from_points(&kp)?,
         ..Default::default()
     };
     let t = std::time::Instant::now();
@@ -395,6 +448,10 @@ fn run_case(b: &mut Bench, spec: &Spec) -> Result<(StressCase, MeshTriple)> {
     let errors: PerMethod<PartErrors> = PerMethod {
         lbs: part_errors(&ikr.posed, &truth, &b.groups),
         panoman: part_errors(&fit.vertices, &truth, &b.groups),
+    };
+    let regions = PerMethod {
+        lbs: b.body_regions.errors(&ikr.posed, &truth),
+        panoman: b.body_regions.errors(&fit.vertices, &truth),
     };
     let residual = PerMethod {
         lbs: residual_mm(b, &c, &ikr.posed),
@@ -415,6 +472,7 @@ fn run_case(b: &mut Bench, spec: &Spec) -> Result<(StressCase, MeshTriple)> {
         name: spec.name.clone(),
         kind: spec.kind.into(),
         errors,
+        regions,
         keypoint_residual_mm: residual,
         shell_steps_tried: tried,
         shell_steps_accepted: accepted,

@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 use panoman_model::train::RepresentationError;
 use serde::{Deserialize, Deserializer, Serialize};
 
-use super::metrics::PartErrors;
+use super::metrics::{PartErrors, RegionErrors};
 
 /// Reads a number that may have been written as `null` (serde_json writes NaN and ±∞ as
 /// `null`) back as NaN.
@@ -117,10 +117,13 @@ impl StressSummary {
 pub struct StressCase {
     /// Its name (`composite_0`, `old_slim_woman`, `twist_forearm_150`, `hand_on_head`, …).
     pub name: String,
-    /// `composite`, `extreme shape`, `twist`, `contact` or `posture`.
+    /// `composite`, `whole-body`, `extreme shape`, `twist`, `contact` or `posture`.
     pub kind: String,
     /// Per-vertex errors against the ground truth (mm).
     pub errors: PerMethod<PartErrors>,
+    /// Mean per-vertex error per region: feet, legs, torso, arms, hands, face (mm).
+    #[serde(default)]
+    pub regions: PerMethod<RegionErrors>,
     /// Mean keypoint residual over the 133 keypoints (mm).
     pub keypoint_residual_mm: PerMethod<f64>,
     /// Shell LM steps tried over the fit's stages.
