@@ -388,12 +388,12 @@ fn mean_phenotype(solved: &[IkResult]) -> [f64; 6] {
     m
 }
 
-/// Keypoint pairs whose distance is a segment length of the skeleton (TC-133 body names):
-/// upper arms, forearms, thighs, shanks, shoulder and hip width, the torso (neck to body
-/// centre, shoulder to hip) and the pelvis (body centre to hip). A pose moves them only by
-/// the skin's deformation near the joints, so their distances measure the lengths whatever
-/// pose the IK found for the frame.
-pub const SEGMENTS: [(&str, &str); 15] = [
+/// Keypoint pairs whose distance is a segment length of the skeleton (TC-133 names): upper
+/// arms, forearms, thighs, shanks, shoulder and hip width, the torso (neck to body centre,
+/// shoulder to hip), the pelvis (body centre to hip) and the feet (ankle to heel, heel to big
+/// toe). A pose moves them only by the skin's deformation near the joints (and the toes'
+/// bend), so their distances measure the lengths whatever pose the IK found for the frame.
+pub const SEGMENTS: [(&str, &str); 19] = [
     ("l_shoulder", "l_elbow"),
     ("r_shoulder", "r_elbow"),
     ("l_elbow", "l_wrist"),
@@ -409,6 +409,10 @@ pub const SEGMENTS: [(&str, &str); 15] = [
     ("r_shoulder", "r_hip"),
     ("body_center", "l_hip"),
     ("body_center", "r_hip"),
+    ("l_ankle", "l_heel"),
+    ("r_ankle", "r_heel"),
+    ("l_heel", "l_big_toe"),
+    ("r_heel", "r_big_toe"),
 ];
 
 /// One end of a segment: a keypoint (TC-133 index) or a vertex handle's vertex.

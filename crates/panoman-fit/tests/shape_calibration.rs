@@ -88,9 +88,14 @@ fn foot_vertices() -> Vec<u32> {
 const DOMAIN: u64 = 0x5348_0001;
 
 /// `n` frames of the test person: sampled body poses, turned and moved about, with their
-/// exact keypoints and four foot points ([`foot_vertices`], as vertex handles) as the
-/// constraints.
+/// exact TC-133 keypoints as the constraints.
 fn frames(n: u64) -> Vec<Constraints> {
+    frames_with(n, false)
+}
+
+/// [`frames`], and with `with_handles` four foot points ([`foot_vertices`]) as vertex
+/// handles besides.
+fn frames_with(n: u64, with_handles: bool) -> Vec<Constraints> {
     let f = fx();
     let shape = with_knobs(&ShapeParams::default(), &LENGTH_KNOBS, &TRUTH);
     let id = f.generator.identity(&shape).unwrap();
@@ -109,14 +114,17 @@ fn frames(n: u64) -> Vec<Constraints> {
             let mesh = f.map.map(OutputTopology::Small, &id.pose(&p.pose).vertices);
             Constraints {
                 keypoints: KeypointsFile::from_all(&f.set.evaluate(&mesh)),
-                handles: feet
-                    .iter()
-                    .map(|&v| VertexHandle {
-                        vertex: v,
-                        position: mesh[v as usize],
-                        weight: 1.0,
-                    })
-                    .collect(),
+                handles: if with_handles {
+                    feet.iter()
+                        .map(|&v| VertexHandle {
+                            vertex: v,
+                            position: mesh[v as usize],
+                            weight: 1.0,
+                        })
+                        .collect()
+                } else {
+                    Vec::new()
+                },
                 ..Constraints::default()
             }
         })
@@ -163,12 +171,27 @@ fn limb_lengths_are_recovered_from_keypoint_frames() {
     eprintln!("segment lengths off by {before:.2} → {after:.2} mm");
     assert!(before > 8.0, "before: {before} mm");
     assert!(after < 0.25 * before, "{before} → {after} mm");
-    // The foot size, seen by no segment of the body, is found from the heel–toe pairs of the
-    // foot points (rigid over the frames).
+    // The foot size is found from the feet's segments (ankle–heel, heel–big toe).
     let foot = cal.knobs[8].1;
     assert!(
         (foot - TRUTH[8]).abs() < 0.15,
         "foot size {foot} vs {}",
+        TRUTH[8]
+    );
+    // Vertex handles whose given distance is rigid over the frames are segments too: with
+    // the four sole points as handles besides, the foot size still comes back.
+    let with_handles = calibrate_shape(
+        &f.ik,
+        &frames_with(6, true),
+        &ShapeParams::default(),
+        &IkConfig::default(),
+        &ShapeCalibrationOptions::default(),
+    )
+    .unwrap();
+    let foot = with_handles.knobs[8].1;
+    assert!(
+        (foot - TRUTH[8]).abs() < 0.15,
+        "foot size with handles {foot} vs {}",
         TRUTH[8]
     );
     // The shape holds the knobs (LENGTH_KNOBS, in order); the IK results are of that shape.

@@ -99,7 +99,14 @@ fn small_evaluation_reports_every_experiment_and_repeats_exactly() {
     let kinds: Vec<&str> = s.stress.cases.iter().map(|c| c.kind.as_str()).collect();
     assert_eq!(
         kinds,
-        ["composite", "extreme shape", "twist", "posture", "contact"],
+        [
+            "composite",
+            "whole-body",
+            "extreme shape",
+            "twist",
+            "posture",
+            "contact"
+        ],
         "{kinds:?}"
     );
     for c in &s.stress.cases {
@@ -109,8 +116,20 @@ fn small_evaluation_reports_every_experiment_and_repeats_exactly() {
         );
         assert!(c.shell_steps_tried > 0 && c.shell_steps_accepted <= c.shell_steps_tried);
         assert_eq!(c.converged, c.reason.is_none());
+        // The six regions partition the vertices, so the mean over all vertices is a
+        // weighted mean of the region means and lies between the smallest and the largest.
+        for (r, all) in [
+            (c.regions.panoman.values(), c.errors.panoman.all_mean),
+            (c.regions.lbs.values(), c.errors.lbs.all_mean),
+        ] {
+            assert!(r.iter().all(|x| x.is_finite() && *x >= 0.0), "{r:?}");
+            let (lo, hi) = r
+                .iter()
+                .fold((f64::INFINITY, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
+            assert!(lo - 1e-9 <= all && all <= hi + 1e-9, "{all} outside {r:?}");
+        }
     }
-    let tw = s.stress.cases[2].twist.expect("twist measures");
+    let tw = s.stress.cases[3].twist.expect("twist measures");
     assert!(tw.min_radius_ratio.panoman > 0.0 && tw.shoulder_mean_mm.lbs.is_finite());
     assert_eq!(out.meshes.stress.len(), s.stress.cases.len());
     assert!(s.stress.cases.iter().any(|c| c.name == s.stress.worst_case));
