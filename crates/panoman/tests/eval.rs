@@ -46,6 +46,7 @@ fn small_evaluation_reports_every_experiment_and_repeats_exactly() {
     preset.clip_frames = 3;
     preset.twist_angles = vec![0.0, 150.0, 180.0];
     let cfg = EvalConfig {
+        stress_without_feet: false,
         model: model.clone(),
         data: data.clone(),
         preset,

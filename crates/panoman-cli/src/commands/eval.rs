@@ -44,6 +44,9 @@ pub struct EvalArgs {
     /// per-region table on stdout, stress/NAME.png and stress_worst.png).
     #[arg(long, value_parser = ["stress"])]
     pub only: Option<String>,
+    /// Fit the stress set from TC-127 keypoints: the six foot keypoints left out.
+    #[arg(long)]
+    pub without_feet: bool,
     /// Asset directory.
     #[arg(long)]
     pub assets: Option<PathBuf>,
@@ -53,6 +56,7 @@ pub struct EvalArgs {
 pub fn run(a: EvalArgs) -> Result<()> {
     let t_all = Instant::now();
     let cfg = EvalConfig {
+        stress_without_feet: a.without_feet,
         model: a.model.clone(),
         data: a.data.clone(),
         preset: EvalPreset::named(&a.preset)?,

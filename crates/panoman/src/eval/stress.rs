@@ -18,7 +18,7 @@
 use panoman_fit::fit::{FitResult, keypoint_residuals};
 use panoman_fit::twist::LimbSegment;
 use panoman_fit::{Constraints, fit_frame};
-use panoman_human::keypoints::KeypointsFile;
+use panoman_human::keypoints::{KeypointGroup, KeypointsFile};
 use panoman_human::params::ShapeParams;
 use panoman_human::phenotype::Phenotype;
 use panoman_human::regions::Part;
@@ -432,14 +432,20 @@ fn shell_steps(fit: &FitResult) -> (usize, usize) {
 }
 
 /// Fits one case and measures it.
-fn run_case(b: &mut Bench, spec: &Spec) -> Result<(StressCase, MeshTriple)> {
+fn run_case(b: &mut Bench, spec: &Spec, without_feet: bool) -> Result<(StressCase, MeshTriple)> {
     let g = b.rig.generator.clone();
     let bones = BoneMap::new(g.bone_names())?;
     let id = g.identity(&spec.shape)?;
     let rest = b.rig.map.map(b.rig.topology, id.rest_vertices());
     let (kp, truth) = posed_keypoints(b, &id, &bones, &spec.theta);
+    let mut keypoints = KeypointsFile::from_points(&kp)?;
+    if without_feet {
+        let feet = KeypointGroup::Feet.range();
+        keypoints.points.retain(|i, _| !feet.contains(i));
+        keypoints.weights.retain(|i, _| !feet.contains(i));
+    }
     let c = Constraints {
-        keypoints: KeypointsFile::from_points(&kp)?,
+        keypoints,
         ..Default::default()
     };
     let t = std::time::Instant::now();
@@ -497,6 +503,7 @@ pub(crate) fn run(
     b: &mut Bench,
     preset: &EvalPreset,
     seed: u64,
+    without_feet: bool,
     progress: &mut dyn FnMut(EvalProgress),
 ) -> Result<StressRun> {
     let mut specs = specs(preset, seed)?;
@@ -505,7 +512,7 @@ pub(crate) fn run(
     let mut all = Vec::new();
     for (i, s) in specs.iter().enumerate() {
         progress(EvalProgress::Detail(&format!("stress case {}", s.name)));
-        let (case, meshes) = run_case(b, s)?;
+        let (case, meshes) = run_case(b, s, without_feet)?;
         all.push((case.name.clone(), meshes));
         cases.push(case);
         progress(EvalProgress::Step {
