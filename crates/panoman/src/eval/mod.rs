@@ -68,6 +68,8 @@ pub struct EvalPreset {
     pub stress_extremes: usize,
     /// Stress set: forearm twists (degrees).
     pub stress_twists_deg: Vec<f64>,
+    /// Stress set: upper-arm and forearm rolls together, `[upper arm, forearm]` (degrees).
+    pub stress_arm_rolls_deg: Vec<[f64; 2]>,
     /// Stress set: contact cases (hand on head, hand at chin; at most 2).
     pub stress_contacts: usize,
     /// Stress set: postures (deep sit, crouch, kneel, a raised foot, crossed legs; at most 5).
@@ -90,6 +92,7 @@ impl EvalPreset {
             stress_whole_body: 12,
             stress_extremes: 5,
             stress_twists_deg: vec![120.0, 150.0, 170.0, 180.0],
+            stress_arm_rolls_deg: vec![[72.0, 120.0], [100.0, 170.0]],
             stress_contacts: 2,
             stress_postures: 5,
         }
@@ -110,6 +113,7 @@ impl EvalPreset {
             stress_whole_body: 1,
             stress_extremes: 1,
             stress_twists_deg: vec![150.0],
+            stress_arm_rolls_deg: Vec::new(),
             stress_contacts: 1,
             stress_postures: 1,
         }

@@ -52,6 +52,8 @@ struct Spec {
     theta: Theta,
     /// Forearm twist (degrees) of a twist case.
     twist_deg: Option<f64>,
+    /// Upper-arm roll (degrees) of a twist case (0 for a forearm twist alone).
+    upper_arm_deg: f64,
 }
 
 /// Slot of a posable bone in [`Theta`].
@@ -128,6 +130,7 @@ fn specs(preset: &EvalPreset, seed: u64) -> Result<Vec<Spec>> {
             shape,
             theta,
             twist_deg: None,
+            upper_arm_deg: 0.0,
         });
     }
     for i in 0..preset.stress_whole_body {
@@ -140,6 +143,7 @@ fn specs(preset: &EvalPreset, seed: u64) -> Result<Vec<Spec>> {
             shape,
             theta,
             twist_deg: None,
+            upper_arm_deg: 0.0,
         });
     }
     for (name, ph) in extreme_phenotypes()
@@ -158,12 +162,19 @@ fn specs(preset: &EvalPreset, seed: u64) -> Result<Vec<Spec>> {
             shape,
             theta,
             twist_deg: None,
+            upper_arm_deg: 0.0,
         });
     }
     let twist = slot("lowerarm02.L")?;
+    let upper_twist = slot("upperarm02.L")?;
     let elbow = slot("lowerarm01.L")?;
     let shoulder = slot("upperarm01.L")?;
-    for &ang in &preset.stress_twists_deg {
+    let arm_cases = preset
+        .stress_twists_deg
+        .iter()
+        .map(|&f| [0.0, f])
+        .chain(preset.stress_arm_rolls_deg.iter().copied());
+    for [upper, ang] in arm_cases {
         let mut rng = next_rng();
         let shape = IdentitySampler::default().sample(&mut rng).shape;
         let mut theta = BodyPoseSampler.sample(&mut rng);
@@ -172,12 +183,20 @@ fn specs(preset: &EvalPreset, seed: u64) -> Result<Vec<Spec>> {
         theta.deg[shoulder] = [20.0, 0.0, -30.0];
         theta.deg[elbow] = [35.0, 0.0, 0.0];
         theta.deg[twist][1] = ang;
+        if upper != 0.0 {
+            theta.deg[upper_twist][1] = upper;
+        }
         out.push(Spec {
-            name: format!("twist_forearm_{ang:.0}"),
+            name: if upper == 0.0 {
+                format!("twist_forearm_{ang:.0}")
+            } else {
+                format!("twist_arm_{upper:.0}_{ang:.0}")
+            },
             kind: "twist",
             shape,
             theta,
             twist_deg: Some(ang),
+            upper_arm_deg: upper,
         });
     }
     for name in ["sit_deep", "crouch", "kneel", "foot_raised", "legs_crossed"]
@@ -223,6 +242,7 @@ fn specs(preset: &EvalPreset, seed: u64) -> Result<Vec<Spec>> {
             shape,
             theta,
             twist_deg: None,
+            upper_arm_deg: 0.0,
         });
     }
     Ok(out)
@@ -359,6 +379,7 @@ fn contact_specs(b: &Bench, preset: &EvalPreset, seed: u64) -> Result<Vec<Spec>>
             shape,
             theta,
             twist_deg: None,
+            upper_arm_deg: 0.0,
         });
     }
     Ok(out)
@@ -374,7 +395,13 @@ fn mean_over(x: &[V3], truth: &[V3], vs: &[u32]) -> f64 {
 }
 
 /// The twist measures of a twist case (see the module docs).
-fn twist_measures(b: &Bench, angle: f64, rest: &[V3], meshes: &MeshTriple) -> Result<StressTwist> {
+fn twist_measures(
+    b: &Bench,
+    angle: f64,
+    upper_arm_deg: f64,
+    rest: &[V3],
+    meshes: &MeshTriple,
+) -> Result<StressTwist> {
     let kp = &b.model.inner().keypoints;
     let names = &kp.names;
     let row = |n: &str| {
@@ -400,6 +427,7 @@ fn twist_measures(b: &Bench, angle: f64, rest: &[V3], meshes: &MeshTriple) -> Re
     let t = &meshes.truth;
     Ok(StressTwist {
         angle_deg: angle,
+        upper_arm_deg,
         truth_min_radius_ratio: ratio(t),
         min_radius_ratio: PerMethod {
             lbs: ratio(&meshes.lbs),
@@ -471,7 +499,7 @@ fn run_case(b: &mut Bench, spec: &Spec, without_feet: bool) -> Result<(StressCas
         lbs: ikr.posed,
     };
     let twist = match spec.twist_deg {
-        Some(a) => Some(twist_measures(b, a, &rest, &meshes)?),
+        Some(a) => Some(twist_measures(b, a, spec.upper_arm_deg, &rest, &meshes)?),
         None => None,
     };
     let case = StressCase {

@@ -152,6 +152,9 @@ pub struct StressCase {
 pub struct StressTwist {
     /// The forearm twist (degrees).
     pub angle_deg: f64,
+    /// The upper arm's roll beside it (degrees; 0 for a forearm twist alone).
+    #[serde(default)]
+    pub upper_arm_deg: f64,
     /// The ground truth's (skinned, collapsing) ratio.
     #[serde(deserialize_with = "nan_if_null")]
     pub truth_min_radius_ratio: f64,
