@@ -47,6 +47,7 @@ fn small_evaluation_reports_every_experiment_and_repeats_exactly() {
     preset.twist_angles = vec![0.0, 150.0, 180.0];
     let cfg = EvalConfig {
         stress_without_feet: false,
+        stress_representation: false,
         model: model.clone(),
         data: data.clone(),
         preset,

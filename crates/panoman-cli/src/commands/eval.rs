@@ -47,6 +47,10 @@ pub struct EvalArgs {
     /// Fit the stress set from TC-127 keypoints: the six foot keypoints left out.
     #[arg(long)]
     pub without_feet: bool,
+    /// Also encode every stress case's ground truth and pose it again (representation
+    /// error; about a minute per case on the default model).
+    #[arg(long)]
+    pub representation: bool,
     /// Asset directory.
     #[arg(long)]
     pub assets: Option<PathBuf>,
@@ -57,6 +61,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let t_all = Instant::now();
     let cfg = EvalConfig {
         stress_without_feet: a.without_feet,
+        stress_representation: a.representation,
         model: a.model.clone(),
         data: a.data.clone(),
         preset: EvalPreset::named(&a.preset)?,
@@ -151,6 +156,12 @@ fn stress_only(
             cells.join(" "),
             if c.converged { "" } else { "  (flagged)" }
         );
+        if let Some(r) = &c.representation_mm {
+            println!(
+                "{:<18} representation (encode → pose): mean {:.2} mm, max {:.1} mm",
+                "", r.mean, r.max
+            );
+        }
     }
     println!(
         "mean {:.2} / {:.2} mm; worst {}; {}: {:.0} s",

@@ -148,6 +148,10 @@ pub struct EvalConfig {
     /// Fit the stress set from the older TC-127 layout: its cases' six foot keypoints are
     /// left out of the targets (what a body detector without foot points gives).
     pub stress_without_feet: bool,
+    /// Also measure the representation of every stress case: its ground truth encoded
+    /// ([`Model::encode`] with the person's true rest shape, correction applied) and posed
+    /// again (about a minute per case on the default model).
+    pub stress_representation: bool,
 }
 
 /// Progress of [`run_all`], for a front end's spinner.
@@ -317,13 +321,7 @@ pub fn run_stress(
     progress(EvalProgress::Experiment("loading the model, data and rig"));
     let mut b = Bench::open(cfg, assets)?;
     progress(EvalProgress::Experiment("stress set"));
-    let run = stress::run(
-        &mut b,
-        &cfg.preset,
-        cfg.seed,
-        cfg.stress_without_feet,
-        progress,
-    )?;
+    let run = stress::run(&mut b, &cfg.preset, cfg.seed, cfg, progress)?;
     Ok(StressOutput {
         summary: run.summary,
         meshes: run.meshes,
@@ -365,7 +363,7 @@ pub fn run_all(
     let composite = composite::run(&mut b, &held, progress)?;
 
     progress(EvalProgress::Experiment("stress set"));
-    let stress = stress::run(&mut b, preset, cfg.seed, cfg.stress_without_feet, progress)?;
+    let stress = stress::run(&mut b, preset, cfg.seed, cfg, progress)?;
 
     let timing = timing::summary(&held.stage_times, &clip.warm_stage_times, &clip.warm_s);
     let meta = EvalMeta {

@@ -460,14 +460,18 @@ fn shell_steps(fit: &FitResult) -> (usize, usize) {
 }
 
 /// Fits one case and measures it.
-fn run_case(b: &mut Bench, spec: &Spec, without_feet: bool) -> Result<(StressCase, MeshTriple)> {
+fn run_case(
+    b: &mut Bench,
+    spec: &Spec,
+    cfg: &super::EvalConfig,
+) -> Result<(StressCase, MeshTriple)> {
     let g = b.rig.generator.clone();
     let bones = BoneMap::new(g.bone_names())?;
     let id = g.identity(&spec.shape)?;
     let rest = b.rig.map.map(b.rig.topology, id.rest_vertices());
     let (kp, truth) = posed_keypoints(b, &id, &bones, &spec.theta);
     let mut keypoints = KeypointsFile::from_points(&kp)?;
-    if without_feet {
+    if cfg.stress_without_feet {
         let feet = KeypointGroup::Feet.range();
         keypoints.points.retain(|i, _| !feet.contains(i));
         keypoints.weights.retain(|i, _| !feet.contains(i));
@@ -498,6 +502,23 @@ fn run_case(b: &mut Bench, spec: &Spec, without_feet: bool) -> Result<(StressCas
         panoman: fit.vertices,
         lbs: ikr.posed,
     };
+    let representation = if cfg.stress_representation {
+        let p = b
+            .model
+            .encode(&meshes.truth, Some(&rest), crate::Correction::Apply)?;
+        let x = b.model.pose(&p, crate::Correction::Apply)?;
+        let d: Vec<f64> = x
+            .iter()
+            .zip(&meshes.truth)
+            .map(|(a, t)| 1e3 * norm(sub(*a, *t)))
+            .collect();
+        Some(super::summary::MeanMax {
+            mean: d.iter().sum::<f64>() / d.len().max(1) as f64,
+            max: d.iter().copied().fold(0.0, f64::max),
+        })
+    } else {
+        None
+    };
     let twist = match spec.twist_deg {
         Some(a) => Some(twist_measures(b, a, spec.upper_arm_deg, &rest, &meshes)?),
         None => None,
@@ -522,6 +543,7 @@ fn run_case(b: &mut Bench, spec: &Spec, without_feet: bool) -> Result<(StressCas
         retried: verdict.retried,
         seconds,
         twist,
+        representation_mm: representation,
     };
     Ok((case, meshes))
 }
@@ -531,7 +553,7 @@ pub(crate) fn run(
     b: &mut Bench,
     preset: &EvalPreset,
     seed: u64,
-    without_feet: bool,
+    cfg: &super::EvalConfig,
     progress: &mut dyn FnMut(EvalProgress),
 ) -> Result<StressRun> {
     let mut specs = specs(preset, seed)?;
@@ -540,7 +562,7 @@ pub(crate) fn run(
     let mut all = Vec::new();
     for (i, s) in specs.iter().enumerate() {
         progress(EvalProgress::Detail(&format!("stress case {}", s.name)));
-        let (case, meshes) = run_case(b, s, without_feet)?;
+        let (case, meshes) = run_case(b, s, cfg)?;
         all.push((case.name.clone(), meshes));
         cases.push(case);
         progress(EvalProgress::Step {

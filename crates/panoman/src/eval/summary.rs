@@ -144,6 +144,11 @@ pub struct StressCase {
     pub seconds: f64,
     /// Twist measures of a twist case.
     pub twist: Option<StressTwist>,
+    /// The ground truth encoded and posed again (`encode` with the true rest, correction
+    /// applied): mean and max per-vertex error, mm; with
+    /// [`super::EvalConfig::stress_representation`] only.
+    #[serde(default)]
+    pub representation_mm: Option<MeanMax>,
 }
 
 /// The twist measures of a stress case: the forearm's smallest cross-section radius over the
