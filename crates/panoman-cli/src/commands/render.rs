@@ -19,7 +19,7 @@ use std::time::Instant;
     panoman render posed.obj fitted.obj --out cmp.png --view side\n  \
     panoman render M.obj --keypoints K.json --out kp.png --width 800 --height 800\n\n\
     K.json: {\"units\": \"m\", \"keypoints\": {\"neck\": [x, y, z], \"face_30\": [x, y, z], ...}}\n\
-    Keypoint colours: body red, face green, left hand blue, right hand orange.")]
+    Keypoint colours: body red, feet purple, face green, left hand blue, right hand orange.")]
 pub struct RenderArgs {
     /// Meshes to draw (.obj or .ply), left to right.
     #[arg(required = true)]
