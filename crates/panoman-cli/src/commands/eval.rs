@@ -47,8 +47,8 @@ pub struct EvalArgs {
     /// Fit the stress set from TC-127 keypoints: the six foot keypoints left out.
     #[arg(long)]
     pub without_feet: bool,
-    /// Also encode every stress case's ground truth and pose it again (representation
-    /// error; about a minute per case on the default model).
+    /// Also encode the ground truth of every composite of the stress set (both kinds) and
+    /// pose it again (representation error; about a minute per case on the default model).
     #[arg(long)]
     pub representation: bool,
     /// Asset directory.

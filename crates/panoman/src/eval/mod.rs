@@ -148,9 +148,9 @@ pub struct EvalConfig {
     /// Fit the stress set from the older TC-127 layout: its cases' six foot keypoints are
     /// left out of the targets (what a body detector without foot points gives).
     pub stress_without_feet: bool,
-    /// Also measure the representation of every stress case: its ground truth encoded
-    /// ([`Model::encode`] with the person's true rest shape, correction applied) and posed
-    /// again (about a minute per case on the default model).
+    /// Also measure the representation of the stress set's composites (both kinds): each
+    /// ground truth encoded ([`Model::encode`] with the person's true rest shape, correction
+    /// applied) and posed again (about a minute per case on the default model).
     pub stress_representation: bool,
 }
 

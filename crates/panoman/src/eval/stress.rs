@@ -502,23 +502,24 @@ fn run_case(
         panoman: fit.vertices,
         lbs: ikr.posed,
     };
-    let representation = if cfg.stress_representation {
-        let p = b
-            .model
-            .encode(&meshes.truth, Some(&rest), crate::Correction::Apply)?;
-        let x = b.model.pose(&p, crate::Correction::Apply)?;
-        let d: Vec<f64> = x
-            .iter()
-            .zip(&meshes.truth)
-            .map(|(a, t)| 1e3 * norm(sub(*a, *t)))
-            .collect();
-        Some(super::summary::MeanMax {
-            mean: d.iter().sum::<f64>() / d.len().max(1) as f64,
-            max: d.iter().copied().fold(0.0, f64::max),
-        })
-    } else {
-        None
-    };
+    let representation =
+        if cfg.stress_representation && matches!(spec.kind, "composite" | "whole-body") {
+            let p = b
+                .model
+                .encode(&meshes.truth, Some(&rest), crate::Correction::Apply)?;
+            let x = b.model.pose(&p, crate::Correction::Apply)?;
+            let d: Vec<f64> = x
+                .iter()
+                .zip(&meshes.truth)
+                .map(|(a, t)| 1e3 * norm(sub(*a, *t)))
+                .collect();
+            Some(super::summary::MeanMax {
+                mean: d.iter().sum::<f64>() / d.len().max(1) as f64,
+                max: d.iter().copied().fold(0.0, f64::max),
+            })
+        } else {
+            None
+        };
     let twist = match spec.twist_deg {
         Some(a) => Some(twist_measures(b, a, spec.upper_arm_deg, &rest, &meshes)?),
         None => None,

@@ -145,8 +145,8 @@ pub struct StressCase {
     /// Twist measures of a twist case.
     pub twist: Option<StressTwist>,
     /// The ground truth encoded and posed again (`encode` with the true rest, correction
-    /// applied): mean and max per-vertex error, mm; with
-    /// [`super::EvalConfig::stress_representation`] only.
+    /// applied): mean and max per-vertex error, mm; composites only, with
+    /// [`super::EvalConfig::stress_representation`].
     #[serde(default)]
     pub representation_mm: Option<MeanMax>,
 }
