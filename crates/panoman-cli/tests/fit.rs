@@ -361,10 +361,8 @@ fn point_cloud_with_missing_part_and_noise_helps() {
         .collect();
     // TC-127 keypoints (the feet left out): with the foot keypoints the unpolished IK lands
     // this person within 4.4 mm, the near-exact case described above.
-    let mut kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
-    let feet = panoman_human::keypoints::KeypointGroup::Feet.range();
-    kp.points.retain(|i, _| !feet.contains(i));
-    kp.weights.retain(|i, _| !feet.contains(i));
+    let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth))
+        .without_group(panoman_human::keypoints::KeypointGroup::Feet);
     let c = Constraints {
         keypoints: kp,
         ..Default::default()

@@ -8,7 +8,8 @@ mod common;
 use common::{ok, small_model};
 use panoman::{Generator, KeypointsFile, Model};
 use panoman_human::keypoints::{
-    FACE_OFFSET, FEET_OFFSET, LHAND_OFFSET, N_BODY, N_FACE, N_FEET, N_HAND, RHAND_OFFSET,
+    FACE_OFFSET, FEET_OFFSET, KeypointGroup, LHAND_OFFSET, N_BODY, N_FACE, N_FEET, N_HAND,
+    RHAND_OFFSET,
 };
 use panoman_interchange::keypoints_in::{
     OPENPOSE_BODY25_FEET, OPENPOSE_BODY25_TO_TC133, PANOPTIC_COCO19_TO_TC133,
@@ -160,11 +161,7 @@ fn tc133_tc127_openpose_and_panoptic_targets_give_the_same_fit() {
     let body_path = dir.join("tc133_body.json");
     body.write(&body_path).unwrap();
     // An old TC-127 file: every keypoint but the feet, as files of that layout were written.
-    let mut old = KeypointsFile::from_all(&k);
-    old.points
-        .retain(|i, _| !(FEET_OFFSET..FEET_OFFSET + N_FEET).contains(i));
-    old.weights
-        .retain(|i, _| !(FEET_OFFSET..FEET_OFFSET + N_FEET).contains(i));
+    let old = KeypointsFile::from_all(&k).without_group(KeypointGroup::Feet);
     let old_text = old.to_json().unwrap();
     assert!(!old_text.contains("heel") && old_text.contains("r_ankle"));
     let old_path = dir.join("tc127.json");

@@ -745,14 +745,19 @@ fn rest_foot_points() -> Vec<usize> {
     feet
 }
 
+/// The larger of the two feet's flexion errors (`foot.L/R` x, degrees) of `r` against `truth`.
+fn flexion_error_deg(truth: &GeneratorParams, r: &panoman_fit::ik::IkResult) -> f64 {
+    ["foot.L", "foot.R"]
+        .iter()
+        .map(|b| (r.state.angles[bone(b)][0].to_degrees() - truth.pose.euler_deg[bone(b)][0]).abs())
+        .fold(0.0, f64::max)
+}
+
 /// The TC-127 view of a TC-133 keypoint file: the six foot keypoints removed.
 fn without_feet(
-    mut k: panoman_human::keypoints::KeypointsFile,
+    k: panoman_human::keypoints::KeypointsFile,
 ) -> panoman_human::keypoints::KeypointsFile {
-    let feet = KeypointGroup::Feet.range();
-    k.points.retain(|i, _| !feet.contains(i));
-    k.weights.retain(|i, _| !feet.contains(i));
-    k
+    k.without_group(KeypointGroup::Feet)
 }
 
 /// The foot keypoints are IK targets like the others: a foot flexed 30° down and turned in
@@ -775,14 +780,7 @@ fn foot_keypoints_set_the_foot_flexion() {
         };
         panoman_fit::ik_fit(s, &c, &IkConfig::default()).unwrap()
     };
-    let flexion_err = |r: &panoman_fit::ik::IkResult| {
-        ["foot.L", "foot.R"]
-            .iter()
-            .map(|b| {
-                (r.state.angles[bone(b)][0].to_degrees() - truth.pose.euler_deg[bone(b)][0]).abs()
-            })
-            .fold(0.0, f64::max)
-    };
+    let flexion_err = |r: &panoman_fit::ik::IkResult| flexion_error_deg(&truth, r);
     let a = fit(without_feet(all.clone()));
     let b = fit(all);
     eprintln!(
@@ -904,14 +902,7 @@ fn level_pairs_set_the_foot_flexion() {
         levels: levels.clone(),
         ..only.clone()
     };
-    let flexion_err = |r: &panoman_fit::ik::IkResult| {
-        ["foot.L", "foot.R"]
-            .iter()
-            .map(|b| {
-                (r.state.angles[bone(b)][0].to_degrees() - truth.pose.euler_deg[bone(b)][0]).abs()
-            })
-            .fold(0.0, f64::max)
-    };
+    let flexion_err = |r: &panoman_fit::ik::IkResult| flexion_error_deg(&truth, r);
     let level_err = |v: &[[f64; 3]]| {
         levels
             .iter()

@@ -7,7 +7,8 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use panoman_human::keypoints::{
-    FACE_OFFSET, FEET_OFFSET, KeypointsFile, LHAND_OFFSET, N_BODY, N_FACE, N_FEET, N_HAND,
+    FACE_OFFSET, FEET_OFFSET, KeypointGroup, KeypointsFile, LHAND_OFFSET, N_BODY, N_FACE, N_FEET,
+    N_HAND,
 };
 use panoman_interchange::keypoints_in::{
     self, ImportOptions, KeypointFormat, OPENPOSE_BODY25_FEET, OPENPOSE_BODY25_TO_TC133, Unit,
@@ -286,11 +287,7 @@ fn openpose_foot_points_are_foot_keypoints() {
     }
     // A TC-127 file (the feet absent, names as before) reads as it is.
     let tc = dir.join("frame.tc127.json");
-    let mut old = want.clone();
-    old.points
-        .retain(|i, _| !(FEET_OFFSET..FEET_OFFSET + N_FEET).contains(i));
-    old.weights
-        .retain(|i, _| !(FEET_OFFSET..FEET_OFFSET + N_FEET).contains(i));
+    let old = want.clone().without_group(KeypointGroup::Feet);
     old.write(&tc).unwrap();
     let t = keypoints_in::read_keypoints(&tc, &ImportOptions::default()).unwrap();
     assert_same(&old, &t, "tc127");

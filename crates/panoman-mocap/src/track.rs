@@ -291,8 +291,8 @@ pub fn track_generated(
         let truth = rig.map.map(topology, &id.pose(&p.pose).vertices);
         let mut targets = Targets::from_keypoints(&model.keypoints(&truth).map_err(|e| at(&e))?);
         if opts.without_feet {
-            targets.keypoints.points.retain(|i, _| !feet.contains(i));
-            targets.keypoints.weights.retain(|i, _| !feet.contains(i));
+            targets.keypoints = std::mem::take(&mut targets.keypoints)
+                .without_group(panoman_human::keypoints::KeypointGroup::Feet);
         }
         Ok((truth, targets))
     };

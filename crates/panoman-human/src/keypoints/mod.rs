@@ -500,6 +500,15 @@ impl KeypointsFile {
         })
     }
 
+    /// This file without the keypoints of `group` (e.g. [`KeypointGroup::Feet`]: the TC-127
+    /// view of TC-133 targets).
+    pub fn without_group(mut self, group: KeypointGroup) -> KeypointsFile {
+        let r = group.range();
+        self.points.retain(|i, _| !r.contains(i));
+        self.weights.retain(|i, _| !r.contains(i));
+        self
+    }
+
     /// Weight of keypoint `index` (1 if the file gives none).
     pub fn weight(&self, index: usize) -> f64 {
         self.weights.get(&index).copied().unwrap_or(1.0)

@@ -472,9 +472,7 @@ fn run_case(
     let (kp, truth) = posed_keypoints(b, &id, &bones, &spec.theta);
     let mut keypoints = KeypointsFile::from_points(&kp)?;
     if cfg.stress_without_feet {
-        let feet = KeypointGroup::Feet.range();
-        keypoints.points.retain(|i, _| !feet.contains(i));
-        keypoints.weights.retain(|i, _| !feet.contains(i));
+        keypoints = keypoints.without_group(KeypointGroup::Feet);
     }
     let c = Constraints {
         keypoints,
