@@ -10,6 +10,8 @@
 //! Entry points:
 //! * [`Camera`]: `project`, `project_with_jacobian`, `undistort_point`, `ray`, `centre`,
 //!   `projection_matrix`, `validate`.
+//! * Readers, each → `Vec<Camera>` in file order:
+//!   - [`toml_calib::read_toml`] / [`toml_calib::write_toml`]: Pose2Sim / anipose TOML;
 //!
 //! Every error is a [`CaptureError`] whose message names the file, the camera and the field;
 //! no reader panics on malformed input.
@@ -18,6 +20,7 @@
 
 pub mod camera;
 mod error;
+pub mod toml_calib;
 
 pub use camera::Camera;
 pub use error::{CaptureError, Result};
