@@ -11,6 +11,7 @@
 //! * [`Camera`]: `project`, `project_with_jacobian`, `undistort_point`, `ray`, `centre`,
 //!   `projection_matrix`, `validate`.
 //! * Readers, each → `Vec<Camera>` in file order:
+//!   - [`qualisys::read_qca`]: Qualisys `.qca.txt`;
 //!   - [`toml_calib::read_toml`] / [`toml_calib::write_toml`]: Pose2Sim / anipose TOML;
 //!
 //! Every error is a [`CaptureError`] whose message names the file, the camera and the field;
@@ -20,6 +21,7 @@
 
 pub mod camera;
 mod error;
+pub mod qualisys;
 pub mod toml_calib;
 
 pub use camera::Camera;
