@@ -13,6 +13,8 @@
 //! * Readers, each → `Vec<Camera>` in file order:
 //!   - [`qualisys::read_qca`]: Qualisys `.qca.txt`;
 //!   - [`toml_calib::read_toml`] / [`toml_calib::write_toml`]: Pose2Sim / anipose TOML;
+//! * [`triangulate::triangulate`] / [`triangulate::triangulate_many`]: confidence-weighted
+//!   DLT, exhaustive pairwise RANSAC over views, Levenberg–Marquardt refinement.
 //!
 //! Every error is a [`CaptureError`] whose message names the file, the camera and the field;
 //! no reader panics on malformed input.
@@ -23,6 +25,7 @@ pub mod camera;
 mod error;
 pub mod qualisys;
 pub mod toml_calib;
+pub mod triangulate;
 
 pub use camera::Camera;
 pub use error::{CaptureError, Result};
