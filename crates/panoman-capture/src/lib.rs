@@ -13,6 +13,7 @@
 //! * Readers, each → `Vec<Camera>` in file order:
 //!   - [`qualisys::read_qca`]: Qualisys `.qca.txt`;
 //!   - [`toml_calib::read_toml`] / [`toml_calib::write_toml`]: Pose2Sim / anipose TOML;
+//!   - [`panoptic::read_panoptic`]: CMU Panoptic `calibration_<seq>.json`;
 //! * [`triangulate::triangulate`] / [`triangulate::triangulate_many`]: confidence-weighted
 //!   DLT, exhaustive pairwise RANSAC over views, Levenberg–Marquardt refinement.
 //!
@@ -23,6 +24,7 @@
 
 pub mod camera;
 mod error;
+pub mod panoptic;
 pub mod qualisys;
 pub mod toml_calib;
 pub mod triangulate;
