@@ -14,6 +14,7 @@
 //!   - [`qualisys::read_qca`]: Qualisys `.qca.txt`;
 //!   - [`toml_calib::read_toml`] / [`toml_calib::write_toml`]: Pose2Sim / anipose TOML;
 //!   - [`panoptic::read_panoptic`]: CMU Panoptic `calibration_<seq>.json`;
+//!   - [`opencv_yaml::read_opencv_yaml`]: OpenCV / EasyMocap `intri.yml` + `extri.yml`.
 //! * [`triangulate::triangulate`] / [`triangulate::triangulate_many`]: confidence-weighted
 //!   DLT, exhaustive pairwise RANSAC over views, Levenberg–Marquardt refinement.
 //!
@@ -24,6 +25,7 @@
 
 pub mod camera;
 mod error;
+pub mod opencv_yaml;
 pub mod panoptic;
 pub mod qualisys;
 pub mod toml_calib;
