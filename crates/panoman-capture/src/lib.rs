@@ -1,0 +1,51 @@
+//! Multi-view capture front end for panoman: calibrated cameras and robust multi-view
+//! triangulation of 2-D keypoints.
+//!
+//! Conventions: metres and radians in the API, `f64` throughout; cameras follow OpenCV
+//! (camera frame x right, y down, z forward; world → camera `x_cam = R·X + t`; pixel =
+//! `K · distort(x/z, y/z)` with distortion `[k1, k2, p1, p2, k3]`; see [`camera`]). Every
+//! reader converts the file's units (millimetres, centimetres, 1/64 pixel) and axis
+//! conventions to these.
+//!
+//! Entry points:
+//! * [`Camera`]: `project`, `project_with_jacobian`, `undistort_point`, `ray`, `centre`,
+//!   `projection_matrix`, `validate`.
+//! * Readers, each → `Vec<Camera>` in file order:
+//!   - [`qualisys::read_qca`]: Qualisys `.qca.txt`;
+//!   - [`toml_calib::read_toml`] / [`toml_calib::write_toml`]: Pose2Sim / anipose TOML;
+//!   - [`panoptic::read_panoptic`]: CMU Panoptic `calibration_<seq>.json`;
+//!   - [`opencv_yaml::read_opencv_yaml`]: OpenCV / EasyMocap `intri.yml` + `extri.yml`.
+//! * [`triangulate::triangulate`] / [`triangulate::triangulate_many`]: confidence-weighted
+//!   DLT, exhaustive pairwise RANSAC over views, Levenberg–Marquardt refinement.
+//!
+//! Every error is a [`CaptureError`] whose message names the file, the camera and the field;
+//! no reader panics on malformed input.
+
+#![warn(missing_docs)]
+
+pub mod camera;
+mod error;
+pub mod opencv_yaml;
+pub mod panoptic;
+pub mod qualisys;
+pub mod toml_calib;
+pub mod triangulate;
+
+pub use camera::Camera;
+pub use error::{CaptureError, Result};
+
+use std::path::Path;
+
+/// Error unless every camera name is distinct (names the file and the repeated name).
+pub(crate) fn check_unique_names(path: &Path, cameras: &[Camera]) -> Result<()> {
+    let mut seen = std::collections::HashSet::new();
+    for c in cameras {
+        if !seen.insert(c.name.as_str()) {
+            return Err(CaptureError::format(
+                path,
+                format!("camera name {:?} appears twice", c.name),
+            ));
+        }
+    }
+    Ok(())
+}
