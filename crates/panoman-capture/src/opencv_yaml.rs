@@ -154,8 +154,12 @@ fn load(text: &str, path: &Path) -> Result<yaml_rust2::yaml::Hash> {
         body.push_str(&line.replace("!!opencv-matrix", ""));
         body.push('\n');
     }
-    let docs = YamlLoader::load_from_str(&body)
-        .map_err(|e| CaptureError::format(path, format!("not valid YAML: {e}")))?;
+    // yaml-rust2's loader has internal `unwrap`s: a panic on hostile input becomes this
+    // file's error, not a crash.
+    let parsed = std::panic::catch_unwind(|| YamlLoader::load_from_str(&body)).map_err(|_| {
+        CaptureError::format(path, "not valid YAML (the YAML parser gave up on it)")
+    })?;
+    let docs = parsed.map_err(|e| CaptureError::format(path, format!("not valid YAML: {e}")))?;
     match docs.into_iter().next() {
         Some(Yaml::Hash(h)) => Ok(h),
         Some(_) => Err(CaptureError::format(path, "the document is not a mapping")),
