@@ -398,12 +398,9 @@ fn check_len(
     Ok(())
 }
 
-/// OpenPose `people[person]`: 3D arrays if any is non-empty, else an error if 2D data exist.
-fn openpose(doc: &Value, person: usize, acc: &mut Acc) -> std::result::Result<(), String> {
-    let Some(p) = pick(doc, "people", person)? else {
-        return Ok(());
-    };
-    // (array stem, record count, TC-133 index of each source index)
+/// OpenPose's four arrays: `(array stem, record count, TC-133 index of each source index)`,
+/// `usize::MAX` where TC-133 has no counterpart (BODY_25's eyes and ears).
+fn openpose_groups() -> [(&'static str, usize, Vec<usize>); 4] {
     let body: Vec<usize> = {
         let mut m = vec![usize::MAX; 25];
         for (t, &s) in OPENPOSE_BODY25_TO_TC133.iter().enumerate() {
@@ -415,12 +412,78 @@ fn openpose(doc: &Value, person: usize, acc: &mut Acc) -> std::result::Result<()
         m
     };
     let seq = |o: usize, n: usize| (o..o + n).collect::<Vec<usize>>();
-    let groups: [(&str, usize, Vec<usize>); 4] = [
+    [
         ("pose_keypoints", 25, body),
         ("face_keypoints", N_FACE, seq(FACE_OFFSET, N_FACE)),
         ("hand_left_keypoints", N_HAND, seq(LHAND_OFFSET, N_HAND)),
         ("hand_right_keypoints", N_HAND, seq(RHAND_OFFSET, N_HAND)),
-    ];
+    ]
+}
+
+/// 2D keypoints of one image: per TC-133 index, the pixel `[x, y]` and the detector's
+/// confidence (> 0; points with confidence 0 are absent).
+pub type Keypoints2d = std::collections::BTreeMap<usize, ([f64; 2], f64)>;
+
+/// Reads the 2D keypoints of `people[person]` of one OpenPose JSON file (`*_keypoints_2d`
+/// arrays, `x y c` per point, pixels; BODY_25 with the foot points, face 70, hands 21 each)
+/// as TC-133 [`Keypoints2d`] (the mapping of the 3D reader). A frame without that person
+/// gives an empty map.
+///
+/// # Errors
+/// I/O, JSON, not an OpenPose file, an array whose length is not its count × 3, a
+/// non-finite coordinate or a negative or non-finite confidence: one error naming the file.
+pub fn read_openpose_2d(path: &Path, person: usize) -> Result<Keypoints2d> {
+    let text = std::fs::read_to_string(path).map_err(|e| InterchangeError::io(path, e))?;
+    parse_openpose_2d(&text, path, person)
+}
+
+/// [`read_openpose_2d`] on the file's text (`path` names it in errors).
+///
+/// # Errors
+/// See [`read_openpose_2d`].
+pub fn parse_openpose_2d(text: &str, path: &Path, person: usize) -> Result<Keypoints2d> {
+    let fmt = |w: String| InterchangeError::format(path, w);
+    let doc: Value = serde_json::from_str(text).map_err(|e| fmt(format!("invalid JSON: {e}")))?;
+    if detect(&doc, path)? != Layout::OpenPose {
+        return Err(fmt(
+            "not an OpenPose file (no `people[]` keypoint arrays)".into()
+        ));
+    }
+    let mut out = Keypoints2d::new();
+    let Some(p) = pick(&doc, "people", person).map_err(fmt)? else {
+        return Ok(out);
+    };
+    for (stem, n, map) in openpose_groups() {
+        let key = format!("{stem}_2d");
+        let v = numbers(p.get(key.as_str()), &key).map_err(fmt)?;
+        if v.is_empty() {
+            continue;
+        }
+        check_len(&v, n, 3, &format!("{key} (x y c per point)")).map_err(fmt)?;
+        for (s, &t) in map.iter().enumerate() {
+            let (xy, c) = ([v[3 * s], v[3 * s + 1]], v[3 * s + 2]);
+            if !c.is_finite() || c < 0.0 {
+                return Err(fmt(format!(
+                    "{key}[{s}]: confidence must be finite and ≥ 0, got {c}"
+                )));
+            }
+            if let Some(x) = xy.iter().find(|x| !x.is_finite()) {
+                return Err(fmt(format!("{key}[{s}]: coordinate {x} is not finite")));
+            }
+            if t != usize::MAX && c > 0.0 {
+                out.insert(t, (xy, c));
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// OpenPose `people[person]`: 3D arrays if any is non-empty, else an error if 2D data exist.
+fn openpose(doc: &Value, person: usize, acc: &mut Acc) -> std::result::Result<(), String> {
+    let Some(p) = pick(doc, "people", person)? else {
+        return Ok(());
+    };
+    let groups = openpose_groups();
     let mut any3d = false;
     let mut any2d = None;
     for (stem, _, _) in &groups {

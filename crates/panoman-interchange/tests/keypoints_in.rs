@@ -312,3 +312,82 @@ fn pose_set(doc: &mut Value, i: usize, v: Value) {
         .as_array_mut()
         .unwrap()[i] = v;
 }
+
+/// OpenPose's 2D arrays (`x y c`, pixels) read as TC-133 2D keypoints with the 3D reader's
+/// mapping (BODY_25's body and foot points, face, hands); confidence 0 is absent, eyes and
+/// ears have no TC-133 counterpart; a wrong length, a negative confidence or a file of
+/// another layout is one error naming the file.
+#[test]
+fn openpose_2d_keypoints_map_to_tc133() {
+    use keypoints_in::{OPENPOSE_BODY25_FEET, parse_openpose_2d};
+    let dir = common::scratch("keypoints_in_2d");
+    // Pixel of TC-133 keypoint t: (10 t, 1000 − t), confidence 0.5 (0 for the right heel).
+    let px = |t: usize| [10.0 * t as f64, 1000.0 - t as f64];
+    let conf = |t: usize| if t == FEET_OFFSET + 5 { 0.0 } else { 0.5 };
+    let mut pose = vec![0.0; 75];
+    for s in 0..25 {
+        pose[3 * s..3 * s + 3].copy_from_slice(&[-1.0, -1.0, 0.9]); // eyes, ears: unmapped
+    }
+    let mut put = |s: usize, t: usize| {
+        pose[3 * s..3 * s + 3].copy_from_slice(&[px(t)[0], px(t)[1], conf(t)]);
+    };
+    for (t, &s) in OPENPOSE_BODY25_TO_TC133.iter().enumerate() {
+        put(s, t);
+    }
+    for (k, &s) in OPENPOSE_BODY25_FEET.iter().enumerate() {
+        put(s, FEET_OFFSET + k);
+    }
+    let part = |o: usize, n: usize| -> Vec<f64> {
+        (o..o + n)
+            .flat_map(|t| [px(t)[0], px(t)[1], conf(t)])
+            .collect()
+    };
+    let doc = json!({"version": 1.3, "people": [{
+        "pose_keypoints_2d": pose,
+        "face_keypoints_2d": part(FACE_OFFSET, N_FACE),
+        "hand_left_keypoints_2d": part(LHAND_OFFSET, N_HAND),
+        "hand_right_keypoints_2d": []
+    }]});
+    let p = Path::new("cam1_000000000000_keypoints.json");
+    let k = parse_openpose_2d(&doc.to_string(), p, 0).unwrap();
+    // 15 body + 5 feet + 70 face + 21 left hand.
+    assert_eq!(k.len(), N_BODY + N_FEET - 1 + N_FACE + N_HAND);
+    for (&t, &(xy, c)) in &k {
+        assert_eq!((xy, c), (px(t), 0.5), "keypoint {t}");
+    }
+    assert!(
+        !k.contains_key(&(FEET_OFFSET + 5)),
+        "confidence 0 is absent"
+    );
+    // Nobody there: an empty frame.
+    assert!(
+        parse_openpose_2d(&doc.to_string(), p, 1)
+            .unwrap()
+            .is_empty()
+    );
+    // Errors name the file.
+    let mut bad = doc.clone();
+    bad["people"][0]["pose_keypoints_2d"] = json!([1.0, 2.0]);
+    let e = parse_openpose_2d(&bad.to_string(), p, 0)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("cam1_000000000000") && e.contains("75"), "{e}");
+    let mut bad = doc.clone();
+    bad["people"][0]["face_keypoints_2d"][2] = json!(-0.5);
+    let e = parse_openpose_2d(&bad.to_string(), p, 0)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cam1_000000000000") && e.contains("confidence"),
+        "{e}"
+    );
+    let tc = write(
+        &dir,
+        "frame.json",
+        &json!({"keypoints": {"neck": [0, 0, 1]}}),
+    );
+    let e = keypoints_in::read_openpose_2d(&tc, 0)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("frame.json") && e.contains("OpenPose"), "{e}");
+}
