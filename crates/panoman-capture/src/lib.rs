@@ -17,6 +17,8 @@
 //!   - [`opencv_yaml::read_opencv_yaml`]: OpenCV / EasyMocap `intri.yml` + `extri.yml`.
 //! * [`triangulate::triangulate`] / [`triangulate::triangulate_many`]: confidence-weighted
 //!   DLT, exhaustive pairwise RANSAC over views, Levenberg–Marquardt refinement.
+//! * [`frame::triangulate_frame`]: one frame's 2D keypoints per camera (TC-133, e.g.
+//!   `panoman_interchange::keypoints_in::read_openpose_2d`) → TC-133 3D targets.
 //!
 //! Every error is a [`CaptureError`] whose message names the file, the camera and the field;
 //! no reader panics on malformed input.
@@ -25,6 +27,7 @@
 
 pub mod camera;
 mod error;
+pub mod frame;
 pub mod opencv_yaml;
 pub mod panoptic;
 pub mod qualisys;
