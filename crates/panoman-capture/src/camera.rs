@@ -49,6 +49,32 @@ pub struct Camera {
 }
 
 impl Camera {
+    /// A camera from a row-major 3×3 intrinsic matrix `k` (9 values, the readers check the
+    /// shape; `fx = k[0]`, `skew = k[1]`, `cx = k[2]`, `fy = k[4]`, `cy = k[5]`), distortion,
+    /// world→camera `r`, `t` (metres), active. Not validated.
+    pub(crate) fn from_intrinsic_matrix(
+        name: String,
+        k: &[f64],
+        dist: [f64; 5],
+        r: M3,
+        t: V3,
+        image_size: Option<[u32; 2]>,
+    ) -> Camera {
+        Camera {
+            name,
+            fx: k[0],
+            fy: k[4],
+            cx: k[2],
+            cy: k[5],
+            skew: k[1],
+            dist,
+            r,
+            t,
+            image_size,
+            active: true,
+        }
+    }
+
     /// A camera without distortion or skew, active, from intrinsics, extrinsics and size.
     #[allow(clippy::too_many_arguments)]
     pub fn pinhole(

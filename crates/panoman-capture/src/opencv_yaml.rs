@@ -114,19 +114,8 @@ pub fn parse_opencv_yaml(
         };
         let t = matrix(&edoc, extri, &format!("T_{n}"), n, &[(3, 1)])?
             .ok_or_else(|| missing(extri, n, &format!("T_{n}")))?;
-        let camera = Camera {
-            name: n.clone(),
-            fx: k[0],
-            fy: k[4],
-            cx: k[2],
-            cy: k[5],
-            skew: k[1],
-            dist,
-            r,
-            t: [t[0], t[1], t[2]],
-            image_size,
-            active: true,
-        };
+        let camera =
+            Camera::from_intrinsic_matrix(n.clone(), &k, dist, r, [t[0], t[1], t[2]], image_size);
         if let Err(what) = camera.problem() {
             // A bad rotation or translation comes from extri.yml, anything else from intri.yml.
             let extrinsic = crate::camera::rotation_error(&camera.r).is_err()

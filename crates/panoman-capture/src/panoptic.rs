@@ -69,19 +69,14 @@ pub fn parse_panoptic(text: &str, path: &Path, only_type: Option<&str>) -> Resul
         };
         let r = matrix(get("R")?, 3, 3).map_err(|w| err(format!("\"R\": {w}")))?;
         let t = matrix(get("t")?, 3, 1).map_err(|w| err(format!("\"t\": {w}")))?;
-        let camera = Camera {
+        let camera = Camera::from_intrinsic_matrix(
             name,
-            fx: k[0],
-            fy: k[4],
-            cx: k[2],
-            cy: k[5],
-            skew: k[1],
+            &k,
             dist,
-            r: [[r[0], r[1], r[2]], [r[3], r[4], r[5]], [r[6], r[7], r[8]]],
-            t: [t[0] / 100.0, t[1] / 100.0, t[2] / 100.0],
-            image_size: Some(size),
-            active: true,
-        };
+            [[r[0], r[1], r[2]], [r[3], r[4], r[5]], [r[6], r[7], r[8]]],
+            [t[0] / 100.0, t[1] / 100.0, t[2] / 100.0],
+            Some(size),
+        );
         camera.problem().map_err(err)?;
         keep.push(only_type.is_none_or(|want| want == kind));
         all.push(camera);
