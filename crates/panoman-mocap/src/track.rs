@@ -387,9 +387,9 @@ pub fn track_generated(
         setup_seconds,
         n_vertices: model.n_vertices(),
         layout: if opts.without_feet {
-            "TC-127"
+            panoman_human::keypoints::LAYOUT_NAME_TC127
         } else {
-            "TC-133"
+            panoman_human::keypoints::LAYOUT_NAME
         }
         .to_string(),
         calibration,

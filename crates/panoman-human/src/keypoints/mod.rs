@@ -206,6 +206,8 @@ pub const LHAND_OFFSET: usize = FACE_OFFSET + N_FACE;
 pub const RHAND_OFFSET: usize = LHAND_OFFSET + N_HAND;
 /// Name of the layout, as files and reports give it.
 pub const LAYOUT_NAME: &str = "TC-133";
+/// Name of the older layout without the feet ([`tc127_names`]).
+pub const LAYOUT_NAME_TC127: &str = "TC-127";
 /// Number of keypoints of the older TC-127 layout (TC-133 without the feet).
 pub const N_KEYPOINTS_TC127: usize = N_KEYPOINTS - N_FEET;
 
