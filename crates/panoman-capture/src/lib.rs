@@ -32,6 +32,7 @@ pub mod frame;
 pub mod opencv_yaml;
 pub mod panoptic;
 pub mod qualisys;
+pub mod sequence;
 pub mod toml_calib;
 pub mod triangulate;
 
