@@ -26,6 +26,7 @@
 #![warn(missing_docs)]
 
 pub mod camera;
+pub mod capture;
 mod error;
 pub mod fetch;
 pub mod frame;
@@ -53,4 +54,48 @@ pub(crate) fn check_unique_names(path: &Path, cameras: &[Camera]) -> Result<()> 
         }
     }
     Ok(())
+}
+
+/// Reads a calibration in any supported format, chosen by the path: a folder holding
+/// `intri.yml` + `extri.yml` (OpenCV / EasyMocap), `*.qca.txt` or `*.qca` (Qualisys, default
+/// [`qualisys::QcaOptions`]), `*.toml` (Pose2Sim / anipose), `*.json` (CMU Panoptic, its HD
+/// cameras when it has any).
+///
+/// # Errors
+/// An unknown kind of path (naming it and the kinds known), and the reader's errors.
+pub fn read_calibration(path: &Path) -> Result<Vec<Camera>> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    if path.is_dir() {
+        let (i, e) = (path.join("intri.yml"), path.join("extri.yml"));
+        if i.is_file() && e.is_file() {
+            return opencv_yaml::read_opencv_yaml(&i, &e, None);
+        }
+        return Err(CaptureError::format(
+            path,
+            "a calibration folder must hold intri.yml and extri.yml (OpenCV / EasyMocap)",
+        ));
+    }
+    if name.ends_with(".qca.txt") || name.ends_with(".qca") {
+        qualisys::read_qca(path, &qualisys::QcaOptions::default())
+    } else if name.ends_with(".toml") {
+        toml_calib::read_toml(path, &toml_calib::TomlOptions::default())
+    } else if name.ends_with(".json") {
+        let all = panoptic::read_panoptic(path, None)?;
+        if all.iter().any(|c| c.name.starts_with("00_")) {
+            let hd = panoptic::read_panoptic(path, Some("hd"))?;
+            if !hd.is_empty() {
+                return Ok(hd);
+            }
+        }
+        Ok(all)
+    } else {
+        Err(CaptureError::format(
+            path,
+            "unknown calibration format: expected *.qca.txt (Qualisys), *.toml (Pose2Sim / \
+             anipose), *.json (CMU Panoptic) or a folder with intri.yml + extri.yml",
+        ))
+    }
 }

@@ -65,6 +65,9 @@ enum Command {
     Export(commands::export::ExportArgs),
     /// Write one self-contained offline HTML viewer of a .glb, a mesh or a mesh folder.
     View(commands::view::ViewArgs),
+    /// Markerless capture from calibrated multi-view video: detect, synchronize, triangulate,
+    /// track, overlays; leave-one-camera-out evaluation.
+    Capture(commands::capture::CaptureArgs),
     /// Motion capture: solve optical markers (PanoMan or LBS), retarget CMU BVH to the rig.
     #[command(subcommand)]
     Mocap(commands::mocap::MocapCommand),
@@ -101,6 +104,7 @@ fn main() -> ExitCode {
         Command::Export(a) => commands::export::run(a),
         Command::View(a) => commands::view::run(a),
         Command::Mocap(c) => commands::mocap::run(c),
+        Command::Capture(a) => commands::capture::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,6 +3,7 @@
 pub mod assets;
 pub mod bench;
 pub mod bench_fit;
+pub mod capture;
 pub mod components;
 pub mod data;
 pub mod demo;

@@ -1,0 +1,689 @@
+//! `panoman capture`: markerless capture from calibrated multi-view video — detection (the
+//! shipped MediaPipe detector, run with Python), synchronization, triangulation, tracking,
+//! outputs and overlays, and the leave-one-camera-out evaluation; see `panoman_capture`.
+
+use anyhow::{Context, Result, anyhow, bail};
+use clap::Args;
+use panoman::{Method, Model};
+use panoman_capture::capture::{
+    CaptureConfig, HeldOut, Mask, Tracked, keypoint_tracks, mean_acceleration, track,
+    vertex_tracks, view_errors,
+};
+use panoman_capture::frame::TriangulatedFrame;
+use panoman_capture::sequence::{
+    Detections, common_frames, estimate_offsets, read_detections_dir, triangulate_sequence,
+    triangulation_stats,
+};
+use panoman_capture::triangulate::TriangulateOptions;
+use panoman_capture::{Camera, read_calibration};
+use panoman_mesh::TriMesh;
+use panoman_mesh::geom::V3;
+use serde_json::json;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::render::RgbImage;
+
+/// The detector, embedded so that the binary can run it with any Python that has mediapipe.
+const DETECT_PY: &str = include_str!("../../../panoman-py/python/panoman/detect.py");
+
+/// Arguments of `panoman capture`.
+#[derive(Args, Debug)]
+#[command(
+    after_help = "Examples:\n  panoman data fetch video\n  bash scripts/detect-setup.sh     # a venv with mediapipe==0.10.14 (target/detect)\n  D=~/.cache/panoman/pose2sim-demo/Demo_SinglePerson\n  panoman capture --calibration $D/calibration/Calib.qca.txt --videos $D/videos \\\n      --python target/detect/bin/python --model M.safetensors --out cap --all-held-out\n  panoman capture --calibration calib.toml --detections dets/ --model M.safetensors --out cap\n\nOutputs: summary.json (offsets, timings per stage, triangulation, tracking, held_out[]),\nmeshes/frame_NNNN.obj, triangulated/frame_NNNN.json (TC-133 keypoints), overlays/<camera>/\nframe_NNNN.png (person mask grey, mesh silhouette blue, detections green, model keypoints red)."
+)]
+pub struct CaptureArgs {
+    /// Camera calibration: *.qca.txt (Qualisys), *.toml (Pose2Sim / anipose), *.json (CMU
+    /// Panoptic) or a folder with intri.yml + extri.yml (OpenCV / EasyMocap).
+    #[arg(long)]
+    pub calibration: PathBuf,
+    /// One video per camera (file stem = camera name) or one image folder per camera: the
+    /// detector runs on them first (into OUT/detections).
+    #[arg(long, conflicts_with = "detections")]
+    pub videos: Option<PathBuf>,
+    /// Detections already made: DIR/<camera>/<camera>_<frame>_keypoints.json (OpenPose JSON),
+    /// optional <camera>_<frame>_mask.png person masks and DIR/detections.json.
+    #[arg(long)]
+    pub detections: Option<PathBuf>,
+    /// Model file (.safetensors).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Python with mediapipe==0.10.14 for --videos (default: $PANOMAN_DETECT_PYTHON, else
+    /// target/detect/bin/python if present, else python3).
+    #[arg(long)]
+    pub python: Option<PathBuf>,
+    /// Frame offsets per camera, in calibration order (camera frame = common frame + offset),
+    /// e.g. 0,-3,5,-1; default: estimated.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub offsets: Option<Vec<i64>>,
+    /// Largest offset searched (frames).
+    #[arg(long, default_value_t = 10)]
+    pub max_offset: usize,
+    /// Inlier threshold of the triangulation (pixels).
+    #[arg(long, default_value_t = 40.0)]
+    pub threshold_px: f64,
+    /// Shape calibration frames (0: none).
+    #[arg(long, default_value_t = 8)]
+    pub calibrate_shape: usize,
+    /// Expected noise of the triangulated keypoints (metres per coordinate): the fit's priors
+    /// and quality thresholds.
+    #[arg(long, default_value_t = 0.015)]
+    pub keypoint_sigma: f64,
+    /// Frames per second (default: detections.json's, else 60).
+    #[arg(long)]
+    pub fps: Option<f64>,
+    /// Evaluate with this camera held out (fit from the others, score in it).
+    #[arg(long, conflicts_with = "all_held_out")]
+    pub held_out_camera: Option<String>,
+    /// Evaluate with every camera held out in turn.
+    #[arg(long)]
+    pub all_held_out: bool,
+    /// Skip the LBS baseline in the evaluation.
+    #[arg(long)]
+    pub no_lbs: bool,
+    /// Overlay every N-th frame (0: none).
+    #[arg(long, default_value_t = 10)]
+    pub overlay_every: usize,
+}
+
+fn write_json<T: serde::Serialize>(path: &Path, v: &T) -> Result<()> {
+    let s = serde_json::to_string_pretty(v)?;
+    crate::util::write_atomic(path, s.as_bytes())
+}
+
+/// The Python that runs the detector.
+fn detector_python(a: &CaptureArgs) -> PathBuf {
+    if let Some(p) = &a.python {
+        return p.clone();
+    }
+    if let Some(p) = std::env::var_os("PANOMAN_DETECT_PYTHON").filter(|v| !v.is_empty()) {
+        return PathBuf::from(p);
+    }
+    let local = PathBuf::from("target/detect/bin/python");
+    if local.is_file() {
+        return local;
+    }
+    PathBuf::from("python3")
+}
+
+/// Checks that the videos (or image folders) and the cameras match one to one.
+fn check_videos(videos: &Path, cameras: &[Camera]) -> Result<()> {
+    let mut stems = Vec::new();
+    for e in std::fs::read_dir(videos).with_context(|| videos.display().to_string())? {
+        let p = e?.path();
+        let is_video = p.extension().and_then(|x| x.to_str()).is_some_and(|x| {
+            ["mp4", "avi", "mov", "mkv"].contains(&x.to_ascii_lowercase().as_str())
+        });
+        if is_video || p.is_dir() {
+            if let Some(s) = p.file_stem().and_then(|s| s.to_str()) {
+                stems.push((s.to_string(), p.clone()));
+            }
+        }
+    }
+    for (s, p) in &stems {
+        if !cameras.iter().any(|c| &c.name == s) {
+            bail!(
+                "{}: a video of camera {s:?}, which the calibration does not have (cameras: {})",
+                p.display(),
+                names(cameras)
+            );
+        }
+    }
+    for c in cameras {
+        if !stems.iter().any(|(s, _)| s == &c.name) {
+            bail!(
+                "{}: no video of camera {:?} (expected {}.mp4 or a folder {})",
+                videos.display(),
+                c.name,
+                c.name,
+                c.name
+            );
+        }
+    }
+    Ok(())
+}
+
+fn names(cameras: &[Camera]) -> String {
+    cameras
+        .iter()
+        .map(|c| c.name.as_str())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Runs the embedded detector on `videos` into `out` (the detector writes atomically).
+fn run_detector(a: &CaptureArgs, videos: &Path, out: &Path) -> Result<()> {
+    let py = detector_python(a);
+    let script = a.out.join(".detect.py");
+    crate::util::write_atomic(&script, DETECT_PY.as_bytes())?;
+    let status = std::process::Command::new(&py)
+        .arg(&script)
+        .arg("--videos")
+        .arg(videos)
+        .arg("--out")
+        .arg(out)
+        .arg("--masks")
+        .status()
+        .map_err(|e| {
+            anyhow!(
+                "cannot run {} ({e}): the detector needs Python with mediapipe==0.10.14 \
+                 (scripts/detect-setup.sh, then --python target/detect/bin/python)",
+                py.display()
+            )
+        });
+    let _ = std::fs::remove_file(&script);
+    let status = status?;
+    if !status.success() {
+        bail!(
+            "{}: the detector ({} {}) failed ({status}); its message is above",
+            videos.display(),
+            py.display(),
+            script.display()
+        );
+    }
+    Ok(())
+}
+
+/// `detections.json` of a detection folder, if present.
+fn detection_info(dir: &Path) -> Option<serde_json::Value> {
+    let text = std::fs::read_to_string(dir.join("detections.json")).ok()?;
+    serde_json::from_str(&text).ok()
+}
+
+/// The person masks of camera `c` at camera frames `frames` (None where absent).
+fn read_masks(
+    dets: &Detections,
+    c: usize,
+    frames: &[usize],
+    scale: f64,
+) -> Result<Vec<Option<Mask>>> {
+    let dir = &dets.dirs[c];
+    let cam = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    frames
+        .iter()
+        .map(|&f| {
+            let p = dir.join(format!("{cam}_{f:012}_mask.png"));
+            if p.is_file() {
+                Ok(Some(Mask::read_png(&p, scale)?))
+            } else {
+                Ok(None)
+            }
+        })
+        .collect()
+}
+
+/// Runs `panoman capture`.
+pub fn run(a: CaptureArgs) -> Result<()> {
+    let t_all = Instant::now();
+    let cameras = read_calibration(&a.calibration)?;
+    if cameras.len() < 2 {
+        bail!(
+            "{}: {} camera(s); triangulation needs at least 2",
+            a.calibration.display(),
+            cameras.len()
+        );
+    }
+    let held: Vec<usize> = match (&a.held_out_camera, a.all_held_out) {
+        (Some(n), _) => vec![cameras.iter().position(|c| &c.name == n).ok_or_else(|| {
+            anyhow!(
+                "{}: no camera {n:?} to hold out (cameras: {})",
+                a.calibration.display(),
+                names(&cameras)
+            )
+        })?],
+        (None, true) => (0..cameras.len()).collect(),
+        (None, false) => Vec::new(),
+    };
+    if !held.is_empty() && cameras.len() < 3 {
+        bail!("holding a camera out needs at least 3 cameras (2 left to triangulate)");
+    }
+    let (videos, det_dir) = match (&a.videos, &a.detections) {
+        (Some(v), None) => (Some(v.clone()), a.out.join("detections")),
+        (None, Some(d)) => (None, d.clone()),
+        _ => bail!("give --videos (detect first) or --detections"),
+    };
+    if let Some(v) = &videos {
+        check_videos(v, &cameras)?;
+    }
+    let model = Model::load(&a.model)?;
+    std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
+    let t_detect = Instant::now();
+    if let Some(v) = &videos {
+        if det_dir.join("detections.json").is_file() {
+            eprintln!("detections: reusing {}", det_dir.display());
+        } else {
+            run_detector(&a, v, &det_dir)?;
+        }
+    }
+    let detect_wall_s = t_detect.elapsed().as_secs_f64();
+    let info = detection_info(&det_dir);
+    let dets = read_detections_dir(&det_dir, &cameras, 0)?;
+    let fps = a
+        .fps
+        .or_else(|| info.as_ref()?["cameras"][0]["fps"].as_f64())
+        .unwrap_or(60.0);
+    let mask_scale = info
+        .as_ref()
+        .and_then(|i| i["mask_scale"].as_f64())
+        .unwrap_or(0.25);
+
+    // Synchronization.
+    let t_sync = Instant::now();
+    let (offsets, sync) = match &a.offsets {
+        Some(o) => {
+            if o.len() != cameras.len() {
+                bail!(
+                    "--offsets: {} values for {} cameras ({})",
+                    o.len(),
+                    cameras.len(),
+                    names(&cameras)
+                );
+            }
+            (o.clone(), json!({"given": o}))
+        }
+        None => {
+            let est = estimate_offsets(&cameras, &dets, a.max_offset)?;
+            let o: Vec<i64> = est.iter().map(|e| e.offset).collect();
+            let rows: Vec<_> = est
+                .iter()
+                .map(|e| {
+                    json!({"camera": e.camera, "offset": e.offset, "median_px": e.median_px,
+                           "median_px_at_zero": e.median_px_at_zero, "pairs": e.pairs})
+                })
+                .collect();
+            (o, json!({"estimated": rows}))
+        }
+    };
+    let sync_s = t_sync.elapsed().as_secs_f64();
+    let range = common_frames(&dets, &offsets);
+    if range.is_empty() {
+        bail!(
+            "{}: no frame common to every camera under offsets {offsets:?}",
+            det_dir.display()
+        );
+    }
+    eprintln!(
+        "capture: {} cameras, offsets {offsets:?}, {} common frames",
+        cameras.len(),
+        range.len()
+    );
+    let topts = TriangulateOptions {
+        threshold_px: a.threshold_px,
+        ..Default::default()
+    };
+    let cfg = CaptureConfig {
+        calibrate_shape: a.calibrate_shape,
+        keypoint_sigma: a.keypoint_sigma,
+        fps,
+        ..Default::default()
+    };
+
+    // All cameras: triangulate and track (PanoMan).
+    let t_tri = Instant::now();
+    let tri = triangulate_sequence(&cameras, &dets, &offsets, &[], &topts)?;
+    let tri_s = t_tri.elapsed().as_secs_f64();
+    let bar = crate::util::progress_bar(tri.len() as u64, "track");
+    let t_fit = Instant::now();
+    let tracked = track(&model, &tri, Method::PanoMan, &cfg, &|_| bar.inc(1))?;
+    bar.finish_and_clear();
+    let fit_s = t_fit.elapsed().as_secs_f64();
+    write_outputs(&a.out, &model, &tri, &tracked)?;
+    let camera_frames: Vec<Vec<usize>> = (0..cameras.len())
+        .map(|c| {
+            range
+                .clone()
+                .map(|t| (t as i64 + offsets[c]) as usize)
+                .collect()
+        })
+        .collect();
+    if a.overlay_every > 0 {
+        write_overlays(
+            &a.out.join("overlays"),
+            &cameras,
+            &dets,
+            &camera_frames,
+            &model,
+            &tracked,
+            mask_scale,
+            a.overlay_every,
+        )?;
+    }
+
+    // Leave-one-camera-out.
+    let mut held_out = Vec::new();
+    for &h in &held {
+        eprintln!("held out: {}", cameras[h].name);
+        held_out.push(evaluate_held_out(
+            &a,
+            &model,
+            &cameras,
+            &dets,
+            &offsets,
+            &camera_frames,
+            h,
+            &topts,
+            &cfg,
+            mask_scale,
+        )?);
+    }
+    let n = tri.len() as f64;
+    let stats: BTreeMap<String, serde_json::Value> = triangulation_stats(&tri)
+        .into_iter()
+        .map(|(k, (frames, px))| {
+            let name = model
+                .keypoint_names()
+                .get(k)
+                .cloned()
+                .unwrap_or(k.to_string());
+            (
+                name,
+                json!({"frames": frames, "median_reprojection_px": px}),
+            )
+        })
+        .collect();
+    let detect_s_per_frame = info.as_ref().and_then(|i| i["seconds_per_frame"].as_f64());
+    let summary = json!({
+        "calibration": a.calibration.display().to_string(),
+        "detections": det_dir.display().to_string(),
+        "detector": info.as_ref().map(|i| i["detector"].clone()),
+        "cameras": cameras.iter().map(|c| c.name.clone()).collect::<Vec<_>>(),
+        "fps": fps,
+        "synchronization": sync,
+        "offsets": offsets,
+        "common_frames": [range.start, range.end],
+        "frames": tri.len(),
+        "seconds_per_frame": {
+            "detection_per_view": detect_s_per_frame,
+            "detection_wall": if videos.is_some() { Some(detect_wall_s / (n * cameras.len() as f64)) } else { None },
+            "synchronization": sync_s / n,
+            "triangulation": tri_s / n,
+            "fit": fit_s / n,
+        },
+        "triangulation": stats,
+        "tracking": {
+            "method": "panoman",
+            "shape_calibration_seconds": tracked.calibration_seconds,
+            "held_frames": tracked.held,
+            "not_converged_frames": tracked.not_converged,
+            "body_residual_mm_median": median_of(&tracked.residual_mm),
+        },
+        "jitter_m_per_s2": {
+            "panoman_vertices": mean_acceleration(&vertex_tracks(&tracked), fps),
+            "panoman_keypoints": mean_acceleration(&keypoint_tracks(&tri, Some(&tracked)), fps),
+            "triangulation_keypoints": mean_acceleration(&keypoint_tracks(&tri, None), fps),
+        },
+        "held_out": held_out,
+        "wall_seconds": t_all.elapsed().as_secs_f64(),
+    });
+    write_json(&a.out.join("summary.json"), &summary)?;
+    print_summary(&summary);
+    Ok(())
+}
+
+fn median_of(v: &[f64]) -> f64 {
+    let mut f: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if f.is_empty() {
+        return f64::NAN;
+    }
+    f.sort_by(f64::total_cmp);
+    let n = f.len();
+    if n % 2 == 1 {
+        f[n / 2]
+    } else {
+        0.5 * (f[n / 2 - 1] + f[n / 2])
+    }
+}
+
+fn print_summary(s: &serde_json::Value) {
+    println!(
+        "capture: {} frames, offsets {}, fit {:.3} s/frame, jitter (m/s²) mesh {:.2} keypoints {:.2} triangulation {:.2}",
+        s["frames"],
+        s["offsets"],
+        s["seconds_per_frame"]["fit"].as_f64().unwrap_or(f64::NAN),
+        s["jitter_m_per_s2"]["panoman_vertices"]
+            .as_f64()
+            .unwrap_or(f64::NAN),
+        s["jitter_m_per_s2"]["panoman_keypoints"]
+            .as_f64()
+            .unwrap_or(f64::NAN),
+        s["jitter_m_per_s2"]["triangulation_keypoints"]
+            .as_f64()
+            .unwrap_or(f64::NAN),
+    );
+    if let Some(rows) = s["held_out"].as_array() {
+        if !rows.is_empty() {
+            println!("held-out camera | body px P / L / tri | % bbox P / L / tri | IoU P / L");
+        }
+        for r in rows {
+            let e = &r["keypoint_error"];
+            let g = |m: &str, k: &str| e[m][k].as_f64().unwrap_or(f64::NAN);
+            let iou = |m: &str| r["silhouette_iou"][m].as_f64().unwrap_or(f64::NAN);
+            println!(
+                "{} | {:.1} / {:.1} / {:.1} | {:.2} / {:.2} / {:.2} | {:.3} / {:.3}",
+                r["camera"].as_str().unwrap_or("?"),
+                g("panoman", "body_px"),
+                g("lbs", "body_px"),
+                g("triangulation", "body_px"),
+                g("panoman", "body_pct_bbox"),
+                g("lbs", "body_pct_bbox"),
+                g("triangulation", "body_pct_bbox"),
+                iou("panoman"),
+                iou("lbs"),
+            );
+        }
+    }
+}
+
+/// Meshes (OBJ) and triangulated keypoints per frame.
+fn write_outputs(
+    out: &Path,
+    model: &Model,
+    tri: &[TriangulatedFrame],
+    tracked: &Tracked,
+) -> Result<()> {
+    let meshes = out.join("meshes");
+    let kp = out.join("triangulated");
+    std::fs::create_dir_all(&meshes).with_context(|| meshes.display().to_string())?;
+    std::fs::create_dir_all(&kp).with_context(|| kp.display().to_string())?;
+    for (f, (v, t)) in tracked.vertices.iter().zip(tri).enumerate() {
+        panoman_mesh::io::write_mesh(
+            &meshes.join(format!("frame_{f:04}.obj")),
+            &TriMesh::new(v.clone(), model.faces().to_vec()),
+        )?;
+        t.keypoints.write(&kp.join(format!("frame_{f:04}.json")))?;
+    }
+    Ok(())
+}
+
+/// Overlay pictures on the mask grid: person mask grey, mesh silhouette blue (purple where
+/// both), detections green, the mesh's keypoints red.
+#[allow(clippy::too_many_arguments)]
+fn write_overlays(
+    dir: &Path,
+    cameras: &[Camera],
+    dets: &Detections,
+    camera_frames: &[Vec<usize>],
+    model: &Model,
+    tracked: &Tracked,
+    scale: f64,
+    every: usize,
+) -> Result<()> {
+    for (c, cam) in cameras.iter().enumerate() {
+        let d = dir.join(&cam.name);
+        std::fs::create_dir_all(&d).with_context(|| d.display().to_string())?;
+        let picked: Vec<usize> = (0..tracked.vertices.len()).step_by(every).collect();
+        let frames: Vec<usize> = picked.iter().map(|&t| camera_frames[c][t]).collect();
+        let masks = read_masks(dets, c, &frames, scale)?;
+        let [w, h] = cam
+            .image_size
+            .map(|[w, h]| {
+                [
+                    (w as f64 * scale).round() as usize,
+                    (h as f64 * scale).round() as usize,
+                ]
+            })
+            .unwrap_or([270, 480]);
+        for ((&t, &f), mask) in picked.iter().zip(&frames).zip(&masks) {
+            let grid = mask.clone().unwrap_or(Mask {
+                width: w,
+                height: h,
+                scale,
+                data: vec![false; w * h],
+            });
+            let sil = grid.silhouette(cam, &tracked.vertices[t], model.faces());
+            let mut img = RgbImage::new(grid.width as u32, grid.height as u32, [20, 20, 20]);
+            for i in 0..grid.data.len() {
+                let col = match (grid.data[i], sil.data[i]) {
+                    (true, true) => [150, 110, 200],
+                    (true, false) => [130, 130, 130],
+                    (false, true) => [60, 90, 220],
+                    _ => continue,
+                };
+                img.data[3 * i..3 * i + 3].copy_from_slice(&col);
+            }
+            let mut dot = |p: [f64; 2], col: [u8; 3]| {
+                let (x, y) = (p[0] * scale, p[1] * scale);
+                for dy in -2i64..=2 {
+                    for dx in -2i64..=2 {
+                        let (xx, yy) = (x as i64 + dx, y as i64 + dy);
+                        if xx >= 0
+                            && yy >= 0
+                            && (xx as usize) < grid.width
+                            && (yy as usize) < grid.height
+                        {
+                            let i = 3 * (yy as usize * grid.width + xx as usize);
+                            img.data[i..i + 3].copy_from_slice(&col);
+                        }
+                    }
+                }
+            };
+            for (_, (u, conf)) in dets.views[c][f].iter() {
+                if *conf > 0.3 {
+                    dot(*u, [40, 220, 60]);
+                }
+            }
+            for &k in tracked.keypoints[t].iter().take(21) {
+                if let Some(p) = cam.project(k) {
+                    dot(p, [230, 40, 40]);
+                }
+            }
+            img.save_png(&d.join(format!("frame_{t:04}.png")))?;
+        }
+    }
+    Ok(())
+}
+
+/// Fits from every camera but `h` (PanoMan and LBS) and scores in `h`.
+#[allow(clippy::too_many_arguments)]
+fn evaluate_held_out(
+    a: &CaptureArgs,
+    model: &Model,
+    cameras: &[Camera],
+    dets: &Detections,
+    offsets: &[i64],
+    camera_frames: &[Vec<usize>],
+    h: usize,
+    topts: &TriangulateOptions,
+    cfg: &CaptureConfig,
+    mask_scale: f64,
+) -> Result<HeldOut> {
+    let tri = triangulate_sequence(cameras, dets, offsets, &[h], topts)?;
+    let bar = crate::util::progress_bar(
+        (tri.len() * if a.no_lbs { 1 } else { 2 }) as u64,
+        &format!("held out {}", cameras[h].name),
+    );
+    let methods: Vec<Method> = if a.no_lbs {
+        vec![Method::PanoMan]
+    } else {
+        vec![Method::PanoMan, Method::Lbs]
+    };
+    let runs: Vec<Result<Tracked>> = std::thread::scope(|s| {
+        let handles: Vec<_> = methods
+            .iter()
+            .map(|&m| {
+                let (tri, bar) = (&tri, &bar);
+                s.spawn(move || {
+                    track(model, tri, m, cfg, &|_| bar.inc(1)).map_err(anyhow::Error::from)
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|_| Err(anyhow!("a tracking thread panicked")))
+            })
+            .collect()
+    });
+    bar.finish_and_clear();
+    let tracked: Vec<Tracked> = runs.into_iter().collect::<Result<_>>()?;
+    let cam = &cameras[h];
+    let det_h: Vec<_> = camera_frames[h]
+        .iter()
+        .map(|&f| dets.views[h][f].clone())
+        .collect();
+    let mut keypoint_error = BTreeMap::new();
+    let name = |m: Method| {
+        if m == Method::PanoMan {
+            "panoman"
+        } else {
+            "lbs"
+        }
+    };
+    for t in &tracked {
+        let pred = |f: usize, k: usize| t.keypoints.get(f)?.get(k).copied();
+        keypoint_error.insert(
+            name(t.method).to_string(),
+            view_errors(cam, &det_h, &tri, &pred, cfg.eval_min_confidence),
+        );
+    }
+    let tri_pred = |f: usize, k: usize| -> Option<V3> { tri[f].keypoints.points.get(&k).copied() };
+    keypoint_error.insert(
+        "triangulation".into(),
+        view_errors(cam, &det_h, &tri, &tri_pred, cfg.eval_min_confidence),
+    );
+    let masks = read_masks(dets, h, &camera_frames[h], mask_scale)?;
+    let mut silhouette_iou = BTreeMap::new();
+    for t in &tracked {
+        let ious: Vec<f64> = masks
+            .iter()
+            .enumerate()
+            .filter_map(|(f, m)| {
+                let m = m.as_ref()?;
+                Some(m.silhouette(cam, &t.vertices[f], model.faces()).iou(m))
+            })
+            .collect();
+        if !ious.is_empty() {
+            silhouette_iou.insert(name(t.method).to_string(), median_of(&ious));
+        }
+    }
+    let mut jitter = BTreeMap::new();
+    for t in &tracked {
+        jitter.insert(
+            format!("{}_vertices", name(t.method)),
+            mean_acceleration(&vertex_tracks(t), cfg.fps),
+        );
+        jitter.insert(
+            format!("{}_keypoints", name(t.method)),
+            mean_acceleration(&keypoint_tracks(&tri, Some(t)), cfg.fps),
+        );
+    }
+    jitter.insert(
+        "triangulation_keypoints".into(),
+        mean_acceleration(&keypoint_tracks(&tri, None), cfg.fps),
+    );
+    Ok(HeldOut {
+        camera: cam.name.clone(),
+        frames: tri.len(),
+        keypoint_error,
+        silhouette_iou,
+        jitter,
+    })
+}
