@@ -1,0 +1,324 @@
+"""panoman.detect: the offline 2D keypoint detector (MediaPipe Holistic → OpenPose JSON).
+
+The mapping functions run on synthetic landmarks, without mediapipe. The runs of the command
+line need mediapipe 0.10.14: in this interpreter, else the detector's own environment
+(``scripts/detect-setup.sh``: ``$PANOMAN_DETECT_VENV`` or ``target/detect``); they are
+skipped without it. The run on real videos also needs ``$PANOMAN_DETECT_VIDEOS``: a folder
+of one video per camera with one person (e.g. Pose2Sim's ``Demo_SinglePerson/videos``).
+"""
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from panoman import detect
+
+ROOT = Path(__file__).resolve().parents[3]
+SCRIPT = ROOT / "crates" / "panoman-py" / "python" / "panoman" / "detect.py"
+
+W, H = 1000, 2000
+
+
+def lm(x, y, visibility=1.0):
+    return SimpleNamespace(x=x, y=y, z=0.0, visibility=visibility)
+
+
+def pose_landmarks():
+    """33 distinct landmarks inside the image: landmark i at ((i+1)/40, (i+1)/35)."""
+    return [lm((i + 1) / 40, (i + 1) / 35, 0.5 + i / 100) for i in range(33)]
+
+
+def triples(flat):
+    assert len(flat) % 3 == 0
+    return [flat[i : i + 3] for i in range(0, len(flat), 3)]
+
+
+# BODY_25 name → MediaPipe Pose landmark name (restated independently of the module's table).
+MEDIAPIPE_POSE = (
+    "nose left_eye_inner left_eye left_eye_outer right_eye_inner right_eye right_eye_outer "
+    "left_ear right_ear mouth_left mouth_right left_shoulder right_shoulder left_elbow "
+    "right_elbow left_wrist right_wrist left_pinky right_pinky left_index right_index "
+    "left_thumb right_thumb left_hip right_hip left_knee right_knee left_ankle right_ankle "
+    "left_heel right_heel left_foot_index right_foot_index"
+).split()
+BODY25 = {
+    "Nose": "nose", "RShoulder": "right_shoulder", "RElbow": "right_elbow",
+    "RWrist": "right_wrist", "LShoulder": "left_shoulder", "LElbow": "left_elbow",
+    "LWrist": "left_wrist", "RHip": "right_hip", "RKnee": "right_knee",
+    "RAnkle": "right_ankle", "LHip": "left_hip", "LKnee": "left_knee", "LAnkle": "left_ankle",
+    "REye": "right_eye", "LEye": "left_eye", "REar": "right_ear", "LEar": "left_ear",
+    "LBigToe": "left_foot_index", "LHeel": "left_heel", "RBigToe": "right_foot_index",
+    "RHeel": "right_heel",
+}
+BODY25_NAMES = (
+    "Nose Neck RShoulder RElbow RWrist LShoulder LElbow LWrist MidHip RHip RKnee RAnkle LHip "
+    "LKnee LAnkle REye LEye REar LEar LBigToe LSmallToe LHeel RBigToe RSmallToe RHeel"
+).split()
+
+
+def test_body25_mapping():
+    lms = pose_landmarks()
+    kp = triples(detect.body25(lms, W, H))
+    assert len(kp) == 25
+    for i, name in enumerate(BODY25_NAMES):
+        if name in BODY25:
+            src = lms[MEDIAPIPE_POSE.index(BODY25[name])]
+            assert kp[i] == pytest.approx([src.x * W, src.y * H, src.visibility], abs=1e-3), name
+    for name, (a, b) in {"Neck": ("left_shoulder", "right_shoulder"),
+                         "MidHip": ("left_hip", "right_hip")}.items():
+        la, lb = lms[MEDIAPIPE_POSE.index(a)], lms[MEDIAPIPE_POSE.index(b)]
+        want = [(la.x + lb.x) / 2 * W, (la.y + lb.y) / 2 * H, min(la.visibility, lb.visibility)]
+        assert kp[BODY25_NAMES.index(name)] == pytest.approx(want, abs=1e-3), name
+    assert kp[BODY25_NAMES.index("LSmallToe")] == [0, 0, 0]
+    assert kp[BODY25_NAMES.index("RSmallToe")] == [0, 0, 0]
+    # A NormalizedLandmarkList-like object (.landmark) gives the same.
+    assert detect.body25(SimpleNamespace(landmark=lms), W, H) == detect.body25(lms, W, H)
+
+
+def test_body25_confidence_and_outside_points():
+    lms = pose_landmarks()
+    lms[0] = lm(0.5, 0.5, 1.7)  # visibility clipped to 1
+    lms[7] = lm(0.5, 0.5, -0.2)  # left ear: 0 → not found
+    lms[8] = lm(1.2, 0.5, 0.9)  # right ear outside the image → not found
+    lms[11] = lm(0.4, 0.2, 0.3)  # left shoulder: the neck takes the lower confidence
+    lms[12] = lm(0.6, 0.2, 0.8)
+    kp = triples(detect.body25(lms, W, H))
+    assert kp[0] == pytest.approx([500, 1000, 1.0])
+    assert kp[BODY25_NAMES.index("LEar")] == [0, 0, 0]
+    assert kp[BODY25_NAMES.index("REar")] == [0, 0, 0]
+    assert kp[1] == pytest.approx([500, 400, 0.3])
+    assert detect.body25(None, W, H) == []
+    with pytest.raises(ValueError):
+        detect.body25(lms[:21], W, H)
+
+
+def test_hands_and_face():
+    hand = [lm(0.1 + i / 100, 0.2 + i / 200) for i in range(21)]
+    hand[20] = lm(-0.01, 0.5)  # outside
+    kp = triples(detect.hand21(hand, W, H))
+    assert len(kp) == 21
+    assert kp[0] == pytest.approx([100, 400, 1.0]) and kp[5] == pytest.approx([150, 450, 1.0])
+    assert kp[20] == [0, 0, 0]
+    assert detect.hand21(None, W, H) == []
+
+    table = detect.FACE70_FROM_MEDIAPIPE
+    assert len(table) == 70 and len(set(table)) == 70
+    assert all(0 <= i < 468 for i in table[:68]) and table[68:] == (468, 473)
+    face = [lm((i % 30 + 1) / 32, (i // 30 + 1) / 17) for i in range(478)]
+    kp = triples(detect.face70(face, W, H))
+    for k in (0, 8, 30, 36, 45, 48, 68, 69):
+        src = face[table[k]]
+        assert kp[k] == pytest.approx([src.x * W, src.y * H, 1.0], abs=1e-3)
+    # Without the iris refinement (468 points) the pupils are absent.
+    kp = triples(detect.face70(face[:468], W, H))
+    assert kp[68] == kp[69] == [0, 0, 0] and kp[0][2] == 1.0
+    assert detect.face70(None, W, H) == []
+
+
+def test_person():
+    nothing = SimpleNamespace(pose_landmarks=None, face_landmarks=None,
+                              left_hand_landmarks=None, right_hand_landmarks=None)
+    assert detect.person(nothing, W, H) == []
+    hand = [lm(0.5, 0.5)] * 21
+    res = SimpleNamespace(pose_landmarks=pose_landmarks(), face_landmarks=None,
+                          left_hand_landmarks=None, right_hand_landmarks=hand)
+    (p,) = detect.person(res, W, H)
+    assert p["person_id"] == [-1]
+    assert len(p["pose_keypoints_2d"]) == 75 and len(p["hand_right_keypoints_2d"]) == 63
+    assert p["face_keypoints_2d"] == [] and p["hand_left_keypoints_2d"] == []
+    json.dumps({"version": 1.3, "people": [p]})
+
+
+def run(python, *args, **kw):
+    return subprocess.run([python, str(SCRIPT), *map(str, args)], capture_output=True,
+                          text=True, timeout=120, **kw)
+
+
+def test_plain_script_without_dependencies(tmp_path):
+    # detect.py loaded by path with numpy, OpenCV, mediapipe, tqdm and panoman unimportable.
+    code = textwrap.dedent(f"""
+        import sys, importlib.util
+        for m in ("numpy", "cv2", "mediapipe", "tqdm", "panoman"):
+            sys.modules[m] = None
+        spec = importlib.util.spec_from_file_location("detect", {str(SCRIPT)!r})
+        d = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(d)
+        from types import SimpleNamespace as N
+        assert len(d.body25([N(x=0.5, y=0.5, visibility=1.0)] * 33, 10, 10)) == 75
+        p = d._Progress("cam", 20, sys.stdout)
+        for _ in range(20):
+            p.update()
+        sys.exit(d.main(["--videos", {str(tmp_path / "missing")!r}, "--out", "o"]))
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2, r.stderr
+    assert r.stdout.splitlines() == ["detect: cam: 10/20 frames", "detect: cam: 20/20 frames"]
+    assert "missing: no such directory" in r.stderr
+    r = run(sys.executable, "--help")
+    assert r.returncode == 0 and "--mask-scale" in r.stdout
+
+
+def test_errors_before_detection(tmp_path):
+    (tmp_path / "videos").mkdir()
+    (tmp_path / "videos" / "cam01.mp4").write_bytes(b"not read here")
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "keep.txt").write_text("x")
+    cases = [
+        (["--videos", tmp_path / "nope"], "nope: no such directory"),
+        (["--videos", tmp_path / "other"], "no cameras"),
+        (["--videos", tmp_path / "videos", "--cameras", "cam01,cam09"], "no camera cam09"),
+        (["--videos", tmp_path / "videos", "--out", tmp_path / "other"], "not replacing"),
+    ]
+    for args, message in cases:
+        if "--out" not in args:
+            args = [*args, "--out", tmp_path / "out" / "deep"]
+        r = run(sys.executable, *args)
+        assert r.returncode == 2 and message in r.stderr, (args, r.stderr)
+        assert r.stderr.count("\n") == 1, r.stderr
+    assert not (tmp_path / "out").exists()
+    assert (tmp_path / "other" / "keep.txt").exists()
+    for bad in (["--every", "0"], ["--mask-scale", "0"], ["--start", "-1"]):
+        r = run(sys.executable, "--videos", tmp_path, "--out", tmp_path / "o", *bad)
+        assert r.returncode == 2
+
+
+@pytest.fixture(scope="module")
+def detector():
+    """An interpreter with mediapipe and OpenCV: this one, else the detector's environment."""
+    if importlib.util.find_spec("mediapipe") and importlib.util.find_spec("cv2"):
+        return sys.executable
+    venv = Path(os.environ.get("PANOMAN_DETECT_VENV", "target/detect"))
+    python = (venv if venv.is_absolute() else ROOT / venv) / "bin" / "python"
+    if not python.exists():
+        pytest.importorskip("mediapipe", reason="no mediapipe (scripts/detect-setup.sh)")
+    return str(python)
+
+
+def test_face_table_follows_facemesh_contours(detector):
+    code = textwrap.dedent(f"""
+        import importlib.util, json
+        from mediapipe.python.solutions import face_mesh_connections as c
+        spec = importlib.util.spec_from_file_location("detect", {str(SCRIPT)!r})
+        d = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(d)
+        def ids(s):
+            return {{i for e in s for i in e}}
+        t = d.FACE68_FROM_MEDIAPIPE
+        print(json.dumps([
+            set(t[0:17]) <= ids(c.FACEMESH_FACE_OVAL),
+            set(t[17:22]) <= ids(c.FACEMESH_RIGHT_EYEBROW),
+            set(t[22:27]) <= ids(c.FACEMESH_LEFT_EYEBROW),
+            set(t[36:42]) <= ids(c.FACEMESH_RIGHT_EYE),
+            set(t[42:48]) <= ids(c.FACEMESH_LEFT_EYE),
+            set(t[48:68]) <= ids(c.FACEMESH_LIPS),
+            sorted(ids(c.FACEMESH_RIGHT_IRIS)) == [469, 470, 471, 472],
+            sorted(ids(c.FACEMESH_LEFT_IRIS)) == [474, 475, 476, 477],
+        ]))
+    """)
+    r = subprocess.run([detector, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout) == [True] * 8
+
+
+MAKE_INPUTS = """
+import sys, cv2, numpy as np
+from pathlib import Path
+d = Path(sys.argv[1]); (d / "camB").mkdir(parents=True)
+w = cv2.VideoWriter(str(d / "camA.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30, (96, 64))
+for i in range(6):
+    w.write(np.full((64, 96, 3), 30 * i, np.uint8))
+w.release()
+for i in range(3):
+    cv2.imwrite(str(d / "camB" / f"img{i:03d}.png"), np.full((40, 60, 3), 50 * i, np.uint8))
+(d / "broken").mkdir(); (d / "broken" / "camC.avi").write_bytes(b"not a video")
+"""
+
+
+def test_run_on_synthetic_inputs(detector, tmp_path):
+    """Frames without a person: the layout of the output, frame selection, masks, errors."""
+    inputs = tmp_path / "in"
+    r = subprocess.run([detector, "-c", MAKE_INPUTS, str(inputs)], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "res" / "det"
+    r = run(detector, "--videos", inputs, "--out", out, "--every", "2", "--masks",
+            "--mask-scale", "0.5")
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (tmp_path / "res").iterdir()) == ["det"]  # no temp left
+    summary = json.loads((out / "detections.json").read_text())
+    assert summary["detector"] == "mediapipe 0.10.14 holistic model_complexity=1"
+    assert summary["mask_scale"] == 0.5 and summary["seconds_per_frame"] > 0
+    cams = {c["name"]: c for c in summary["cameras"]}
+    assert list(cams) == ["camA", "camB"]
+    assert cams["camA"]["source"] == str(inputs / "camA.mp4")
+    assert (cams["camA"]["frames"], cams["camA"]["fps"]) == (3, 30.0)
+    assert (cams["camA"]["width"], cams["camA"]["height"]) == (96, 64)
+    assert (cams["camB"]["frames"], cams["camB"]["fps"], cams["camB"]["width"]) == (2, None, 60)
+    for c in cams.values():
+        assert c["found_body"] == c["found_face"] == 0
+        assert c["found_left_hand"] == c["found_right_hand"] == 0
+    assert sorted(p.name for p in (out / "camA").iterdir()) == [
+        f"camA_{n:012d}_{kind}" for n in (0, 2, 4) for kind in ("keypoints.json", "mask.png")
+    ]
+    assert sorted(p.name for p in (out / "camB").iterdir())[-1] == "camB_000000000002_mask.png"
+    doc = json.loads((out / "camA" / "camA_000000000004_keypoints.json").read_text())
+    assert doc == {"version": 1.3, "people": []}
+    png = (out / "camB" / "camB_000000000000_mask.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert int.from_bytes(png[16:20], "big") == 30 and int.from_bytes(png[20:24], "big") == 20
+
+    # A second run replaces the first; --start, --frames, --cameras, no masks.
+    r = run(detector, "--videos", inputs, "--out", out, "--start", "1", "--frames", "2",
+            "--cameras", "camA")
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (out / "camA").iterdir()) == [
+        "camA_000000000001_keypoints.json", "camA_000000000002_keypoints.json"
+    ]
+    assert json.loads((out / "detections.json").read_text())["mask_scale"] is None
+    assert not (out / "camB").exists()
+
+    # Errors leave the earlier output as it was.
+    before = sorted(str(p) for p in out.rglob("*"))
+    for args, message in [
+        (["--videos", inputs / "broken"], "camC.avi: cannot"),
+        (["--videos", inputs, "--start", "6"], "camA.mp4: zero frames"),
+    ]:
+        r = run(detector, *args, "--out", out)
+        assert r.returncode == 2 and message in r.stderr, r.stderr
+    assert sorted(str(p) for p in out.rglob("*")) == before
+    assert sorted(p.name for p in (tmp_path / "res").iterdir()) == ["det"]
+
+
+@pytest.mark.skipif(not os.environ.get("PANOMAN_DETECT_VIDEOS"),
+                    reason="set PANOMAN_DETECT_VIDEOS to a folder of videos of one person")
+def test_run_on_videos(detector, tmp_path):
+    videos = Path(os.environ["PANOMAN_DETECT_VIDEOS"])
+    exts = (".mp4", ".avi", ".mov")
+    cam = sorted(p.stem for p in videos.iterdir() if p.suffix.lower() in exts)[0]
+    out = tmp_path / "det"
+    r = run(detector, "--videos", videos, "--out", out, "--frames", "3", "--cameras", cam,
+            "--masks")
+    assert r.returncode == 0, r.stderr
+    (c,) = json.loads((out / "detections.json").read_text())["cameras"]
+    assert c["frames"] == 3 and c["found_body"] == 3
+    for n in range(3):
+        (p,) = json.loads((out / cam / f"{cam}_{n:012d}_keypoints.json").read_text())["people"]
+        body = triples(p["pose_keypoints_2d"])
+        for name in ("Neck", "RShoulder", "LShoulder", "MidHip", "RHip", "LHip"):
+            assert body[BODY25_NAMES.index(name)][2] > 0.5, name
+        # Each hand's wrist is nearer the pose's wrist of the same side.
+        for key, same, other in (("hand_left_keypoints_2d", "LWrist", "RWrist"),
+                                 ("hand_right_keypoints_2d", "RWrist", "LWrist")):
+            if p[key] and p[key][2] > 0:
+                s, o = body[BODY25_NAMES.index(same)], body[BODY25_NAMES.index(other)]
+                d = [((p[key][0] - q[0]) ** 2 + (p[key][1] - q[1]) ** 2) ** 0.5 for q in (s, o)]
+                assert d[0] < d[1], key
+        assert (out / cam / f"{cam}_{n:012d}_mask.png").exists()
