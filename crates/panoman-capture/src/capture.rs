@@ -187,13 +187,13 @@ fn errors_in_view(
     detected: &Keypoints2d,
     keypoints: &[usize],
     predicted: impl Fn(usize) -> Option<V3>,
-) -> Vec<f64> {
+) -> Vec<(usize, f64)> {
     keypoints
         .iter()
         .filter_map(|&k| {
             let (u, _) = detected.get(&k)?;
             let p = camera.project(predicted(k)?)?;
-            Some(((p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2)).sqrt())
+            Some((k, ((p[0] - u[0]).powi(2) + (p[1] - u[1]).powi(2)).sqrt()))
         })
         .collect()
 }
@@ -226,6 +226,8 @@ pub struct ViewErrors {
     pub scored: usize,
     /// Per frame, the median body error (pixels; NaN where none was scored).
     pub per_frame_px: Vec<f64>,
+    /// Per body and foot keypoint (TC-133 index), the median error over frames (pixels).
+    pub per_keypoint_px: BTreeMap<usize, f64>,
 }
 
 /// Scores per-frame 3D keypoints (`predicted[f](k)`) in `camera` against `detections[f]`,
@@ -241,6 +243,7 @@ pub fn view_errors(
     let mut feet = Vec::new();
     let mut pct = Vec::new();
     let mut per_frame = Vec::new();
+    let mut per_keypoint: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
     for (f, det) in detections.iter().enumerate() {
         let confident: Keypoints2d = det
             .iter()
@@ -250,10 +253,13 @@ pub fn view_errors(
         let tri = &triangulated[f].keypoints.points;
         let body: Vec<usize> = (0..15).filter(|k| tri.contains_key(k)).collect();
         let foot: Vec<usize> = (15..21).filter(|k| tri.contains_key(k)).collect();
-        let mut e = errors_in_view(camera, &confident, &body, |k| predicted(f, k));
-        feet.extend(errors_in_view(camera, &confident, &foot, |k| {
-            predicted(f, k)
-        }));
+        let eb = errors_in_view(camera, &confident, &body, |k| predicted(f, k));
+        let ef = errors_in_view(camera, &confident, &foot, |k| predicted(f, k));
+        for &(k, e) in eb.iter().chain(&ef) {
+            per_keypoint.entry(k).or_default().push(e);
+        }
+        feet.extend(ef.iter().map(|p| p.1));
+        let mut e: Vec<f64> = eb.iter().map(|p| p.1).collect();
         let m = median(&mut e.clone());
         per_frame.push(m);
         if let (Some(h), true) = (bbox_height(&confident, min_conf), m.is_finite()) {
@@ -267,6 +273,10 @@ pub fn view_errors(
         body_pct_bbox: median(&mut pct),
         feet_px: median(&mut feet),
         per_frame_px: per_frame,
+        per_keypoint_px: per_keypoint
+            .into_iter()
+            .map(|(k, mut v)| (k, median(&mut v)))
+            .collect(),
     }
 }
 

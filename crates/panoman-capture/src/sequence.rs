@@ -476,7 +476,9 @@ mod tests {
             assert!((s[t].keypoints.points[&0][0] - 0.01 * t as f64).abs() < 1e-12);
         }
         // ±1 mm alternating noise (the Nyquist frequency) is damped below 1 µm at σ = 1.5.
-        let noise: Vec<_> = (0..20).map(|t| mk(if t % 2 == 0 { 1e-3 } else { -1e-3 })).collect();
+        let noise: Vec<_> = (0..20)
+            .map(|t| mk(if t % 2 == 0 { 1e-3 } else { -1e-3 }))
+            .collect();
         let s = smooth_keypoints(&noise, 1.5);
         assert!(s[10].keypoints.points[&0][0].abs() < 1e-6);
         // 6 Hz at 60 fps: σ ≈ 1.32 frames.

@@ -11,8 +11,8 @@ use panoman_capture::capture::{
 };
 use panoman_capture::frame::TriangulatedFrame;
 use panoman_capture::sequence::{
-    Detections, common_frames, estimate_offsets, read_detections_dir, triangulate_sequence,
-    triangulation_stats,
+    Detections, common_frames, estimate_offsets, gaussian_sigma_frames, read_detections_dir,
+    smooth_keypoints, triangulate_sequence, triangulation_stats,
 };
 use panoman_capture::triangulate::TriangulateOptions;
 use panoman_capture::{Camera, read_calibration};
@@ -73,6 +73,10 @@ pub struct CaptureArgs {
     /// and quality thresholds.
     #[arg(long, default_value_t = 0.015)]
     pub keypoint_sigma: f64,
+    /// Temporal smoothing of the triangulated keypoints before the fit: the −3 dB cutoff (Hz)
+    /// of a zero-phase Gaussian (0: none).
+    #[arg(long, default_value_t = 6.0)]
+    pub smooth_hz: f64,
     /// Frames per second (default: detections.json's, else 60).
     #[arg(long)]
     pub fps: Option<f64>,
@@ -327,7 +331,13 @@ pub fn run(a: CaptureArgs) -> Result<()> {
 
     // All cameras: triangulate and track (PanoMan).
     let t_tri = Instant::now();
-    let tri = triangulate_sequence(&cameras, &dets, &offsets, &[], &topts)?;
+    let raw = triangulate_sequence(&cameras, &dets, &offsets, &[], &topts)?;
+    let sigma = if a.smooth_hz > 0.0 {
+        gaussian_sigma_frames(a.smooth_hz, fps)
+    } else {
+        0.0
+    };
+    let tri = smooth_keypoints(&raw, sigma);
     let tri_s = t_tri.elapsed().as_secs_f64();
     let bar = crate::util::progress_bar(tri.len() as u64, "track");
     let t_fit = Instant::now();
@@ -371,10 +381,11 @@ pub fn run(a: CaptureArgs) -> Result<()> {
             &topts,
             &cfg,
             mask_scale,
+            sigma,
         )?);
     }
     let n = tri.len() as f64;
-    let stats: BTreeMap<String, serde_json::Value> = triangulation_stats(&tri)
+    let stats: BTreeMap<String, serde_json::Value> = triangulation_stats(&raw)
         .into_iter()
         .map(|(k, (frames, px))| {
             let name = model
@@ -407,6 +418,7 @@ pub fn run(a: CaptureArgs) -> Result<()> {
             "fit": fit_s / n,
         },
         "triangulation": stats,
+        "smoothing": {"cutoff_hz": a.smooth_hz, "sigma_frames": sigma},
         "tracking": {
             "method": "panoman",
             "shape_calibration_seconds": tracked.calibration_seconds,
@@ -417,7 +429,8 @@ pub fn run(a: CaptureArgs) -> Result<()> {
         "jitter_m_per_s2": {
             "panoman_vertices": mean_acceleration(&vertex_tracks(&tracked), fps),
             "panoman_keypoints": mean_acceleration(&keypoint_tracks(&tri, Some(&tracked)), fps),
-            "triangulation_keypoints": mean_acceleration(&keypoint_tracks(&tri, None), fps),
+            "triangulation_keypoints": mean_acceleration(&keypoint_tracks(&raw, None), fps),
+            "triangulation_smoothed_keypoints": mean_acceleration(&keypoint_tracks(&tri, None), fps),
         },
         "held_out": held_out,
         "wall_seconds": t_all.elapsed().as_secs_f64(),
@@ -593,8 +606,10 @@ fn evaluate_held_out(
     topts: &TriangulateOptions,
     cfg: &CaptureConfig,
     mask_scale: f64,
+    sigma: f64,
 ) -> Result<HeldOut> {
-    let tri = triangulate_sequence(cameras, dets, offsets, &[h], topts)?;
+    let raw = triangulate_sequence(cameras, dets, offsets, &[h], topts)?;
+    let tri = smooth_keypoints(&raw, sigma);
     let bar = crate::util::progress_bar(
         (tri.len() * if a.no_lbs { 1 } else { 2 }) as u64,
         &format!("held out {}", cameras[h].name),
@@ -644,11 +659,19 @@ fn evaluate_held_out(
             view_errors(cam, &det_h, &tri, &pred, cfg.eval_min_confidence),
         );
     }
-    let tri_pred = |f: usize, k: usize| -> Option<V3> { tri[f].keypoints.points.get(&k).copied() };
+    let raw_pred = |f: usize, k: usize| -> Option<V3> { raw[f].keypoints.points.get(&k).copied() };
     keypoint_error.insert(
         "triangulation".into(),
-        view_errors(cam, &det_h, &tri, &tri_pred, cfg.eval_min_confidence),
+        view_errors(cam, &det_h, &raw, &raw_pred, cfg.eval_min_confidence),
     );
+    if sigma > 0.0 {
+        let tri_pred =
+            |f: usize, k: usize| -> Option<V3> { tri[f].keypoints.points.get(&k).copied() };
+        keypoint_error.insert(
+            "triangulation_smoothed".into(),
+            view_errors(cam, &det_h, &tri, &tri_pred, cfg.eval_min_confidence),
+        );
+    }
     let masks = read_masks(dets, h, &camera_frames[h], mask_scale)?;
     let mut silhouette_iou = BTreeMap::new();
     for t in &tracked {
@@ -677,8 +700,14 @@ fn evaluate_held_out(
     }
     jitter.insert(
         "triangulation_keypoints".into(),
-        mean_acceleration(&keypoint_tracks(&tri, None), cfg.fps),
+        mean_acceleration(&keypoint_tracks(&raw, None), cfg.fps),
     );
+    if sigma > 0.0 {
+        jitter.insert(
+            "triangulation_smoothed_keypoints".into(),
+            mean_acceleration(&keypoint_tracks(&tri, None), cfg.fps),
+        );
+    }
     Ok(HeldOut {
         camera: cam.name.clone(),
         frames: tri.len(),
