@@ -28,9 +28,20 @@ pub struct Detections {
     pub views: Vec<Vec<Keypoints2d>>,
     /// Per camera, the folder read (for messages).
     pub dirs: Vec<PathBuf>,
+    /// Per camera and frame, the file read (empty for in-memory detections).
+    pub files: Vec<Vec<PathBuf>>,
 }
 
 impl Detections {
+    /// The person mask written beside the detection file of camera `c`, frame `f`
+    /// (`…_keypoints.json` → `…_mask.png`), if that file exists.
+    pub fn mask_path(&self, c: usize, f: usize) -> Option<PathBuf> {
+        let p = self.files.get(c)?.get(f)?;
+        let name = p.file_name()?.to_str()?.strip_suffix("_keypoints.json")?;
+        let m = p.with_file_name(format!("{name}_mask.png"));
+        m.is_file().then_some(m)
+    }
+
     /// Frames of camera `c`.
     pub fn frames(&self, c: usize) -> usize {
         self.views.get(c).map_or(0, Vec::len)
@@ -99,6 +110,7 @@ pub fn read_detections_dir(dir: &Path, cameras: &[Camera], person: usize) -> Res
             .collect::<Result<Vec<_>>>()?;
         out.views.push(frames);
         out.dirs.push(d);
+        out.files.push(files);
     }
     let n0 = out.frames(0);
     for (c, cam) in cameras.iter().enumerate() {

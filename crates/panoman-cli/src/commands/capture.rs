@@ -205,20 +205,11 @@ fn read_masks(
     frames: &[usize],
     scale: f64,
 ) -> Result<Vec<Option<Mask>>> {
-    let dir = &dets.dirs[c];
-    let cam = dir
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
     frames
         .iter()
-        .map(|&f| {
-            let p = dir.join(format!("{cam}_{f:012}_mask.png"));
-            if p.is_file() {
-                Ok(Some(Mask::read_png(&p, scale)?))
-            } else {
-                Ok(None)
-            }
+        .map(|&f| match dets.mask_path(c, f) {
+            Some(p) => Ok(Some(Mask::read_png(&p, scale)?)),
+            None => Ok(None),
         })
         .collect()
 }
@@ -233,6 +224,16 @@ pub fn run(a: CaptureArgs) -> Result<()> {
             a.calibration.display(),
             cameras.len()
         );
+    }
+    if let Some(o) = &a.offsets {
+        if o.len() != cameras.len() {
+            bail!(
+                "--offsets: {} values for {} cameras ({})",
+                o.len(),
+                cameras.len(),
+                names(&cameras)
+            );
+        }
     }
     let held: Vec<usize> = match (&a.held_out_camera, a.all_held_out) {
         (Some(n), _) => vec![cameras.iter().position(|c| &c.name == n).ok_or_else(|| {
@@ -256,10 +257,12 @@ pub fn run(a: CaptureArgs) -> Result<()> {
     if let Some(v) = &videos {
         check_videos(v, &cameras)?;
     }
-    let model = Model::load(&a.model)?;
-    std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
+    if !a.model.is_file() {
+        bail!("{}: no such model file", a.model.display());
+    }
     let t_detect = Instant::now();
     if let Some(v) = &videos {
+        std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
         if det_dir.join("detections.json").is_file() {
             eprintln!("detections: reusing {}", det_dir.display());
         } else {
@@ -277,21 +280,12 @@ pub fn run(a: CaptureArgs) -> Result<()> {
         .as_ref()
         .and_then(|i| i["mask_scale"].as_f64())
         .unwrap_or(0.25);
+    let model = Model::load(&a.model)?;
 
     // Synchronization.
     let t_sync = Instant::now();
     let (offsets, sync) = match &a.offsets {
-        Some(o) => {
-            if o.len() != cameras.len() {
-                bail!(
-                    "--offsets: {} values for {} cameras ({})",
-                    o.len(),
-                    cameras.len(),
-                    names(&cameras)
-                );
-            }
-            (o.clone(), json!({"given": o}))
-        }
+        Some(o) => (o.clone(), json!({"given": o})),
         None => {
             let est = estimate_offsets(&cameras, &dets, a.max_offset)?;
             let o: Vec<i64> = est.iter().map(|e| e.offset).collect();
@@ -339,6 +333,7 @@ pub fn run(a: CaptureArgs) -> Result<()> {
     };
     let tri = smooth_keypoints(&raw, sigma);
     let tri_s = t_tri.elapsed().as_secs_f64();
+    std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
     let bar = crate::util::progress_bar(tri.len() as u64, "track");
     let t_fit = Instant::now();
     let tracked = track(&model, &tri, Method::PanoMan, &cfg, &|_| bar.inc(1))?;
