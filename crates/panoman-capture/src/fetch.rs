@@ -106,14 +106,12 @@ fn verify(dir: &Path) -> Option<Vec<String>> {
 /// [`CaptureError::Io`] / [`CaptureError::Format`] for an unreadable wheel or a target that
 /// exists but is not a verified demo directory.
 pub fn fetch_video_demo(dir: &Path, wheel: Option<&Path>, force: bool) -> Result<FetchReport> {
-    if !force {
-        if let Some(files) = verify(dir) {
-            return Ok(FetchReport {
-                dir: dir.to_path_buf(),
-                files,
-                already_present: true,
-            });
-        }
+    if let Some(files) = verify(dir).filter(|_| !force) {
+        return Ok(FetchReport {
+            dir: dir.to_path_buf(),
+            files,
+            already_present: true,
+        });
     }
     let human = |e: panoman_human::HumanError| CaptureError::Fetch(e.to_string());
     let env_wheel = std::env::var_os("PANOMAN_POSE2SIM_WHEEL")

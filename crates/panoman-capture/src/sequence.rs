@@ -224,7 +224,7 @@ pub fn estimate_offsets(
         median_px_at_zero: 0.0,
         pairs: 0,
     }];
-    for c in 1..cameras.len() {
+    for (c, cam) in cameras.iter().enumerate().skip(1) {
         let scores: Vec<(i64, f64, usize)> = (-max..=max)
             .into_par_iter()
             .map(|d| {
@@ -242,7 +242,7 @@ pub fn estimate_offsets(
             .copied()
             .unwrap_or((0, zero, 0));
         out.push(OffsetEstimate {
-            camera: cameras[c].name.clone(),
+            camera: cam.name.clone(),
             offset: best.0,
             median_px: best.1,
             median_px_at_zero: zero,
@@ -335,7 +335,7 @@ pub fn gaussian_sigma_frames(cutoff_hz: f64, fps: f64) -> f64 {
 /// `sigma_frames ≤ 0` leaves the frames unchanged.
 pub fn smooth_keypoints(frames: &[TriangulatedFrame], sigma_frames: f64) -> Vec<TriangulatedFrame> {
     let mut out = frames.to_vec();
-    if !(sigma_frames > 0.0) {
+    if sigma_frames.is_nan() || sigma_frames <= 0.0 {
         return out;
     }
     let r = (3.0 * sigma_frames).ceil() as i64;
@@ -484,8 +484,8 @@ mod tests {
         // A uniform motion is unchanged inside (zero phase, weights sum to one).
         let line: Vec<_> = (0..20).map(|t| mk(0.01 * t as f64)).collect();
         let s = smooth_keypoints(&line, 1.5);
-        for t in 5..15 {
-            assert!((s[t].keypoints.points[&0][0] - 0.01 * t as f64).abs() < 1e-12);
+        for (t, f) in s.iter().enumerate().take(15).skip(5) {
+            assert!((f.keypoints.points[&0][0] - 0.01 * t as f64).abs() < 1e-12);
         }
         // ±1 mm alternating noise (the Nyquist frequency) is damped below 1 µm at σ = 1.5.
         let noise: Vec<_> = (0..20)

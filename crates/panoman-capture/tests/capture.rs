@@ -58,8 +58,10 @@ fn a_generated_person_is_recovered_from_exact_2d_keypoints_in_four_views() {
     let cams = cameras();
     let n = 4;
     let mut truth = Vec::new();
-    let mut det = Detections::default();
-    det.views = vec![Vec::new(); cams.len()];
+    let mut det = Detections {
+        views: vec![Vec::new(); cams.len()],
+        ..Default::default()
+    };
     for f in 0..n {
         let u = f as f64 / (n - 1) as f64;
         let params = g

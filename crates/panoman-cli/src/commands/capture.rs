@@ -122,10 +122,12 @@ fn check_videos(videos: &Path, cameras: &[Camera]) -> Result<()> {
         let is_video = p.extension().and_then(|x| x.to_str()).is_some_and(|x| {
             ["mp4", "avi", "mov", "mkv"].contains(&x.to_ascii_lowercase().as_str())
         });
-        if is_video || p.is_dir() {
-            if let Some(s) = p.file_stem().and_then(|s| s.to_str()) {
-                stems.push((s.to_string(), p.clone()));
-            }
+        if let Some(s) = p
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .filter(|_| is_video || p.is_dir())
+        {
+            stems.push((s.to_string(), p.clone()));
         }
     }
     for (s, p) in &stems {
@@ -225,15 +227,13 @@ pub fn run(a: CaptureArgs) -> Result<()> {
             cameras.len()
         );
     }
-    if let Some(o) = &a.offsets {
-        if o.len() != cameras.len() {
-            bail!(
-                "--offsets: {} values for {} cameras ({})",
-                o.len(),
-                cameras.len(),
-                names(&cameras)
-            );
-        }
+    if let Some(o) = a.offsets.as_ref().filter(|o| o.len() != cameras.len()) {
+        bail!(
+            "--offsets: {} values for {} cameras ({})",
+            o.len(),
+            cameras.len(),
+            names(&cameras)
+        );
     }
     let held: Vec<usize> = match (&a.held_out_camera, a.all_held_out) {
         (Some(n), _) => vec![cameras.iter().position(|c| &c.name == n).ok_or_else(|| {
