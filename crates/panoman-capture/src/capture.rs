@@ -42,6 +42,9 @@ pub struct CaptureConfig {
     /// Expected noise of the triangulated keypoints, metres per coordinate: the fit's priors
     /// and quality thresholds ([`panoman::FitRequest::keypoint_sigma`]; default 0.015).
     pub keypoint_sigma: f64,
+    /// TC-133 keypoints left out of the fit's targets (e.g. points a detector synthesizes
+    /// rather than detects); they are still triangulated and scored.
+    pub ignore: Vec<usize>,
 }
 
 impl Default for CaptureConfig {
@@ -52,6 +55,7 @@ impl Default for CaptureConfig {
             eval_min_confidence: 0.5,
             min_body_keypoints: 8,
             keypoint_sigma: 0.015,
+            ignore: Vec::new(),
         }
     }
 }
@@ -75,6 +79,19 @@ pub struct Tracked {
     pub calibration_seconds: f64,
     /// See `calibration_seconds`.
     pub frame_seconds: Vec<f64>,
+}
+
+/// The fit targets of a triangulated frame: its keypoints but those of `config.ignore`.
+fn targets_of(frame: &TriangulatedFrame, config: &CaptureConfig) -> Targets {
+    let mut keypoints = frame.keypoints.clone();
+    for k in &config.ignore {
+        keypoints.points.remove(k);
+        keypoints.weights.remove(k);
+    }
+    Targets {
+        keypoints,
+        ..Default::default()
+    }
 }
 
 fn body_count(k: &KeypointsFile) -> usize {
@@ -117,10 +134,7 @@ pub fn track(
         let n = config.calibrate_shape.min(usable.len());
         let picked: Vec<Targets> = (0..n)
             .map(|i| usable[(i * usable.len() + usable.len() / (2 * n)) / n])
-            .map(|f| Targets {
-                keypoints: frames[f].keypoints.clone(),
-                ..Default::default()
-            })
+            .map(|f| targets_of(&frames[f], config))
             .collect();
         tracker
             .calibrate_shape(&picked, &Default::default())
@@ -149,10 +163,7 @@ pub fn track(
             continue;
         }
         let t = std::time::Instant::now();
-        let targets = Targets {
-            keypoints: frame.keypoints.clone(),
-            ..Default::default()
-        };
+        let targets = targets_of(frame, config);
         let fit = tracker.track(&targets).map_err(|e| fit_err(f, e))?;
         out.frame_seconds.push(t.elapsed().as_secs_f64());
         if !fit.report.converged() {
@@ -345,6 +356,23 @@ impl Mask {
         out
     }
 
+    /// The mask as an 8-bit greyscale PNG (255 inside, 0 outside).
+    pub fn encode_png(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        {
+            let mut enc = png::Encoder::new(&mut out, self.width as u32, self.height as u32);
+            enc.set_color(png::ColorType::Grayscale);
+            enc.set_depth(png::BitDepth::Eight);
+            enc.set_compression(png::Compression::Fast);
+            let data: Vec<u8> = self.data.iter().map(|&b| if b { 255 } else { 0 }).collect();
+            // Writing into a Vec cannot fail for a non-empty image of the stated size.
+            if let Ok(mut w) = enc.write_header() {
+                let _ = w.write_image_data(&data);
+            }
+        }
+        out
+    }
+
     /// Intersection over union with `other` (same grid); NaN when both are empty.
     pub fn iou(&self, other: &Mask) -> f64 {
         let (mut i, mut u) = (0usize, 0usize);
@@ -480,6 +508,23 @@ mod tests {
         }
         assert!((m.iou(&half) - 0.5).abs() < 1e-12);
         assert!(base.iou(&base).is_nan());
+    }
+
+    #[test]
+    fn a_mask_round_trips_through_png() {
+        let mut m = Mask {
+            width: 7,
+            height: 5,
+            scale: 0.5,
+            data: vec![false; 35],
+        };
+        m.data[3] = true;
+        m.data[20] = true;
+        let p = std::env::temp_dir().join(format!("panoman-mask-{}.png", std::process::id()));
+        std::fs::write(&p, m.encode_png()).unwrap();
+        let back = Mask::read_png(&p, 0.5).unwrap();
+        std::fs::remove_file(&p).unwrap();
+        assert_eq!(back, m);
     }
 
     #[test]

@@ -163,7 +163,7 @@ def test_plain_script_without_dependencies(tmp_path):
     assert r.stdout.splitlines() == ["detect: cam: 10/20 frames", "detect: cam: 20/20 frames"]
     assert "missing: no such directory" in r.stderr
     r = run(sys.executable, "--help")
-    assert r.returncode == 0 and "--mask-scale" in r.stdout
+    assert r.returncode == 0 and "--mask-scale" in r.stdout and "--overlay DIR" in r.stdout
 
 
 def test_errors_before_detection(tmp_path):
@@ -322,3 +322,195 @@ def test_run_on_videos(detector, tmp_path):
                 d = [((p[key][0] - q[0]) ** 2 + (p[key][1] - q[1]) ** 2) ** 0.5 for q in (s, o)]
                 assert d[0] < d[1], key
         assert (out / cam / f"{cam}_{n:012d}_mask.png").exists()
+
+
+# ---------------------------------------------------------------------------------------
+# Overlay mode (--overlay): numpy and OpenCV only, no mediapipe.
+
+
+@pytest.fixture(scope="module")
+def opencv():
+    """An interpreter with OpenCV and numpy: this one, else the detector's environment."""
+    if importlib.util.find_spec("cv2") and importlib.util.find_spec("numpy"):
+        return sys.executable
+    venv = Path(os.environ.get("PANOMAN_DETECT_VENV", "target/detect"))
+    python = (venv if venv.is_absolute() else ROOT / venv) / "bin" / "python"
+    if not python.exists():
+        pytest.importorskip("cv2", reason="no OpenCV (scripts/detect-setup.sh)")
+    return str(python)
+
+
+def overlay_case(root, cams):
+    """``root/ov/overlays.json`` listing ``cams`` (name → [(index, frame), ...]), each frame's
+    silhouette ``<cam>/silhouette_<index>.png`` (not written here) and one detection and
+    two model points (one of them null)."""
+    ov = root / "ov"
+    ov.mkdir(parents=True, exist_ok=True)
+    doc = {"scale": 0.25, "fps": 60.0, "cameras": [
+        {"name": name, "frames": [
+            {"index": i, "frame": f, "silhouette": f"{name}/silhouette_{i:04d}.png",
+             "detections": [[20.0, 20.0]], "model": [[140.0, 100.0], [None, 3.0]]}
+            for i, f in frames
+        ]}
+        for name, frames in cams.items()
+    ]}
+    (ov / "overlays.json").write_text(json.dumps(doc))
+    return ov
+
+
+def test_overlay_errors_before_decoding(tmp_path):
+    """Errors found before OpenCV is needed (this interpreter: no cv2 required)."""
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    (videos / "camA.mp4").write_bytes(b"not read here")
+    ov = overlay_case(tmp_path, {"camA": [(0, 0), (1, 3)], "camC": [(0, 0)]})
+    (ov / "camA").mkdir()
+    (ov / "camA" / "silhouette_0000.png").write_bytes(b"not read here")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    cases = [
+        (["--overlay", empty], "overlays.json: no such file"),
+        (["--overlay", tmp_path / "nope"], "nope: no such directory"),
+        (["--overlay", ov], "no camera camC"),
+        (["--overlay", ov, "--cameras", "camA"], "silhouette_0001.png: no such silhouette"),
+        (["--overlay", ov, "--cameras", "camX"], "overlays.json: no camera camX"),
+    ]
+    for args, message in cases:
+        r = run(sys.executable, *args, "--videos", videos)
+        assert r.returncode == 2 and message in r.stderr, (args, r.stderr)
+        assert r.stderr.count("\n") == 1, r.stderr
+    (ov / "overlays.json").write_text('{"scale": 0.25, "fps": 0, "cameras": []}')
+    r = run(sys.executable, "--overlay", ov, "--videos", videos)
+    assert r.returncode == 2 and "overlays.json: 'fps' must be a positive number" in r.stderr
+    (ov / "overlays.json").write_text("{")
+    r = run(sys.executable, "--overlay", ov, "--videos", videos)
+    assert r.returncode == 2 and "overlays.json: cannot read" in r.stderr
+    # Detection options do not go with --overlay; --video-scale only goes with it.
+    for bad in (["--overlay", ov, "--out", tmp_path / "o"], ["--overlay", ov, "--masks"],
+                ["--out", tmp_path / "o", "--video-scale", "0.5"],
+                ["--overlay", ov, "--video-scale", "0"], []):
+        r = run(sys.executable, "--videos", videos, *bad)
+        assert r.returncode == 2, (bad, r.stderr)
+    assert not (tmp_path / "o").exists()
+    assert sorted(p.name for p in ov.rglob("*")) == ["camA", "overlays.json",
+                                                     "silhouette_0000.png"]
+
+
+MAKE_OVERLAY_INPUTS = """
+import sys, cv2, numpy as np
+from pathlib import Path
+root = Path(sys.argv[1]); videos = root / "videos"; ov = root / "ov"
+(videos / "camB").mkdir(parents=True)
+# camA: 10 frames of 160×120, frame i uniformly grey 10 + 20 i.
+w = cv2.VideoWriter(str(videos / "camA.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30, (160, 120))
+for i in range(10):
+    w.write(np.full((120, 160, 3), 10 + 20 * i, np.uint8))
+w.release()
+# camB: 4 images of 80×60.
+for i in range(4):
+    cv2.imwrite(str(videos / "camB" / f"img{i:02d}.png"), np.full((60, 80, 3), 40 * i, np.uint8))
+# Silhouettes on the 0.25 grid: a rectangle over full-resolution x 60–120, y 40–80.
+for cam, size in (("camA", (30, 40)), ("camB", (15, 20))):
+    (ov / cam).mkdir(parents=True, exist_ok=True)
+    for i in range(4):
+        s = np.zeros(size, np.uint8)
+        s[10:20, 15:30] = 255
+        cv2.imwrite(str(ov / cam / f"silhouette_{i:04d}.png"), s)
+"""
+
+READ_OVERLAYS = """
+import json, sys, cv2, numpy as np
+out = {}
+for p in sys.argv[1:]:
+    if p.endswith(".png"):
+        im = cv2.imread(p, cv2.IMREAD_COLOR)
+        out[p] = {"size": [im.shape[1], im.shape[0]], "pixels": im.astype(int).tolist()}
+    else:
+        cap = cv2.VideoCapture(p)
+        frames = []
+        while True:
+            ok, im = cap.read()
+            if not ok:
+                break
+            frames.append(int(round(float(np.median(im[:8, :8])))))
+        out[p] = {"opened": cap.isOpened() or bool(frames), "fps": cap.get(cv2.CAP_PROP_FPS),
+                  "size": [cap.get(cv2.CAP_PROP_FRAME_WIDTH), cap.get(cv2.CAP_PROP_FRAME_HEIGHT)],
+                  "corner_grey": frames}
+print(json.dumps(out))
+"""
+
+
+def read_overlays(python, *paths):
+    r = subprocess.run([python, "-c", READ_OVERLAYS, *map(str, paths)], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)
+
+
+def test_overlay_on_synthetic_inputs(opencv, tmp_path):
+    # Listed out of order (frames 7, 2, 9): decoded in order, written in the listed order.
+    ov = overlay_case(tmp_path, {"camA": [(0, 7), (1, 2), (2, 9)], "camB": [(0, 3)]})
+    r = subprocess.run([opencv, "-c", MAKE_OVERLAY_INPUTS, str(tmp_path)], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    videos = tmp_path / "videos"
+    r = run(opencv, "--overlay", ov, "--videos", videos)
+    assert r.returncode == 0, r.stderr
+    assert "overlay camA: 3 frames, 80×60" in r.stderr and "overlay camB: 1 frames" in r.stderr
+    assert sorted(p.name for p in (ov / "camA").iterdir() if p.name.startswith("video_")) == [
+        "video_0000.png", "video_0001.png", "video_0002.png"
+    ]
+    assert not [p for p in ov.rglob(".*")]  # no temporary file left
+    pngs = [ov / "camA" / f"video_{i:04d}.png" for i in range(3)]
+    got = read_overlays(opencv, *pngs, ov / "camB" / "video_0000.png", ov / "camA.mp4",
+                        ov / "camB.mp4")
+    for i, (p, grey) in enumerate(zip(pngs, (150, 50, 190))):
+        im = got[str(p)]
+        assert im["size"] == [80, 60], p
+        px = im["pixels"]  # rows of [b, g, r]
+        assert all(abs(c - grey) <= 8 for c in px[5][75]), (p, px[5][75])  # plain frame
+        b, g, r = px[30][45]  # inside the silhouette (full resolution 90, 60): blue
+        assert b > g + 40 and b > r + 60, (p, px[30][45])
+        assert b == pytest.approx(0.55 * grey + 0.45 * 255, abs=10)
+        # A 1-px darker outline: on the silhouette's edge, not 2 px inside it.
+        outline = [(y, x) for y in range(60) for x in range(80) if px[y][x] == [120, 30, 0]]
+        assert len(outline) >= 80 and all(
+            18 <= y <= 41 and 28 <= x <= 61 for y, x in outline
+        ), outline
+        assert px[30][35] != [120, 30, 0] and px[25][45] != [120, 30, 0]
+        b, g, r = px[10][10]  # the detection (20, 20): green
+        assert g > 150 and b < 80 and r < 80, px[10][10]
+        b, g, r = px[50][70]  # the model point (140, 100): red
+        assert r > 200 and b < 80 and g < 80, px[50][70]
+        assert all(abs(c - grey) <= 8 for c in px[10][16])  # dots of radius 3 px
+    assert got[str(ov / "camB" / "video_0000.png")]["size"] == [40, 30]
+    video = got[str(ov / "camA.mp4")]
+    assert video["opened"] and video["size"] == [80, 60] and video["fps"] == 60
+    assert [abs(a - b) <= 8 for a, b in zip(video["corner_grey"], (150, 50, 190))] == [True] * 3
+    assert len(got[str(ov / "camB.mp4")]["corner_grey"]) == 1
+
+    # --cameras, --video-scale; a second run replaces the files.
+    r = run(opencv, "--overlay", ov, "--videos", videos, "--cameras", "camA",
+            "--video-scale", "0.25")
+    assert r.returncode == 0, r.stderr
+    got = read_overlays(opencv, pngs[2], ov / "camA.mp4")
+    assert got[str(pngs[2])]["size"] == [40, 30]
+    assert got[str(ov / "camA.mp4")]["size"] == [40, 30]
+    assert len(got[str(ov / "camA.mp4")]["corner_grey"]) == 3
+
+    # Errors: a frame past the end of the video / of the image folder, an undecodable
+    # silhouette; one line on stderr naming the file.
+    for cams, message in [
+        ({"camA": [(0, 3), (1, 10)]}, "camA.mp4: no frame 10 (the video ends after 10 frames)"),
+        ({"camB": [(0, 4)]}, "camB: no image 4 (the folder has 4 images"),
+        ({"camA": [(5, 1)]}, "silhouette_0005.png: no such silhouette"),
+    ]:
+        overlay_case(tmp_path, cams)
+        r = run(opencv, "--overlay", ov, "--videos", videos)
+        assert r.returncode == 2 and message in r.stderr, r.stderr
+        assert r.stderr.count("\n") == 1, r.stderr
+    (ov / "camA" / "silhouette_0005.png").write_bytes(b"not a png")
+    r = run(opencv, "--overlay", ov, "--videos", videos)
+    assert r.returncode == 2 and "silhouette_0005.png: cannot decode" in r.stderr, r.stderr
+    assert r.stderr.count("\n") == 1, r.stderr
+    assert not [p for p in ov.rglob(".*")]

@@ -77,6 +77,10 @@ pub struct CaptureArgs {
     /// of a zero-phase Gaussian (0: none).
     #[arg(long, default_value_t = 6.0)]
     pub smooth_hz: f64,
+    /// TC-133 keypoints left out of the fit (names, e.g. `neck`: MediaPipe has no neck, its
+    /// OpenPose neck is the shoulders' midpoint); still triangulated and scored.
+    #[arg(long, value_delimiter = ',')]
+    pub ignore: Vec<String>,
     /// Frames per second (default: detections.json's, else 60).
     #[arg(long)]
     pub fps: Option<f64>,
@@ -89,7 +93,8 @@ pub struct CaptureArgs {
     /// Skip the LBS baseline in the evaluation.
     #[arg(long)]
     pub no_lbs: bool,
-    /// Overlay every N-th frame (0: none).
+    /// Overlay pictures on the mask grid every N-th frame (0: no overlays at all; with
+    /// --videos every frame is also composited over the video, and one .mp4 per camera).
     #[arg(long, default_value_t = 10)]
     pub overlay_every: usize,
 }
@@ -319,6 +324,14 @@ pub fn run(a: CaptureArgs) -> Result<()> {
     let cfg = CaptureConfig {
         calibrate_shape: a.calibrate_shape,
         keypoint_sigma: a.keypoint_sigma,
+        ignore: a
+            .ignore
+            .iter()
+            .map(|n| {
+                panoman_human::keypoints::keypoint_index(n)
+                    .ok_or_else(|| anyhow!("--ignore: unknown keypoint {n:?}"))
+            })
+            .collect::<Result<_>>()?,
         fps,
         ..Default::default()
     };
@@ -349,8 +362,9 @@ pub fn run(a: CaptureArgs) -> Result<()> {
         })
         .collect();
     if a.overlay_every > 0 {
+        let dir = a.out.join("overlays");
         write_overlays(
-            &a.out.join("overlays"),
+            &dir,
             &cameras,
             &dets,
             &camera_frames,
@@ -358,7 +372,11 @@ pub fn run(a: CaptureArgs) -> Result<()> {
             &tracked,
             mask_scale,
             a.overlay_every,
+            fps,
         )?;
+        if let Some(v) = &videos {
+            composite_overlays(&a, v, &dir)?;
+        }
     }
 
     // Leave-one-camera-out.
@@ -510,8 +528,12 @@ fn write_outputs(
     Ok(())
 }
 
-/// Overlay pictures on the mask grid: person mask grey, mesh silhouette blue (purple where
-/// both), detections green, the mesh's keypoints red.
+/// Overlays. Every frame and camera: the mesh's silhouette on the mask grid
+/// (`<camera>/silhouette_NNNN.png`) and an entry of `overlays.json` (the camera's frame, the
+/// detections and the mesh's projected keypoints, full-resolution pixels), which the detector
+/// script composites over the video (`--overlay`). Every `every`-th frame also a picture on the
+/// mask grid (`<camera>/frame_NNNN.png`): person mask grey, mesh blue (purple where both),
+/// detections green, the mesh's keypoints red.
 #[allow(clippy::too_many_arguments)]
 fn write_overlays(
     dir: &Path,
@@ -522,13 +544,12 @@ fn write_overlays(
     tracked: &Tracked,
     scale: f64,
     every: usize,
+    fps: f64,
 ) -> Result<()> {
+    let mut cams_json = Vec::new();
     for (c, cam) in cameras.iter().enumerate() {
         let d = dir.join(&cam.name);
         std::fs::create_dir_all(&d).with_context(|| d.display().to_string())?;
-        let picked: Vec<usize> = (0..tracked.vertices.len()).step_by(every).collect();
-        let frames: Vec<usize> = picked.iter().map(|&t| camera_frames[c][t]).collect();
-        let masks = read_masks(dets, c, &frames, scale)?;
         let [w, h] = cam
             .image_size
             .map(|[w, h]| {
@@ -538,14 +559,37 @@ fn write_overlays(
                 ]
             })
             .unwrap_or([270, 480]);
-        for ((&t, &f), mask) in picked.iter().zip(&frames).zip(&masks) {
-            let grid = mask.clone().unwrap_or(Mask {
+        let mut frames_json = Vec::new();
+        for (t, &f) in camera_frames[c].iter().enumerate() {
+            let mask = match dets.mask_path(c, f) {
+                Some(p) => Some(Mask::read_png(&p, scale)?),
+                None => None,
+            };
+            let grid = mask.unwrap_or(Mask {
                 width: w,
                 height: h,
                 scale,
                 data: vec![false; w * h],
             });
             let sil = grid.silhouette(cam, &tracked.vertices[t], model.faces());
+            let sil_name = format!("{}/silhouette_{t:04}.png", cam.name);
+            crate::util::write_atomic(&dir.join(&sil_name), sil.encode_png())?;
+            let detected: Vec<[f64; 2]> = dets.views[c][f]
+                .values()
+                .filter(|(_, conf)| *conf > 0.3)
+                .map(|(u, _)| *u)
+                .collect();
+            let projected: Vec<[f64; 2]> = tracked.keypoints[t]
+                .iter()
+                .filter_map(|&k| cam.project(k))
+                .collect();
+            frames_json.push(json!({
+                "index": t, "frame": f, "silhouette": sil_name,
+                "detections": detected, "model": projected,
+            }));
+            if every == 0 || t % every != 0 {
+                continue;
+            }
             let mut img = RgbImage::new(grid.width as u32, grid.height as u32, [20, 20, 20]);
             for i in 0..grid.data.len() {
                 let col = match (grid.data[i], sil.data[i]) {
@@ -572,18 +616,42 @@ fn write_overlays(
                     }
                 }
             };
-            for (_, (u, conf)) in dets.views[c][f].iter() {
-                if *conf > 0.3 {
-                    dot(*u, [40, 220, 60]);
-                }
+            for &u in &detected {
+                dot(u, [40, 220, 60]);
             }
-            for &k in tracked.keypoints[t].iter().take(21) {
-                if let Some(p) = cam.project(k) {
-                    dot(p, [230, 40, 40]);
-                }
+            for &p in projected.iter().take(21) {
+                dot(p, [230, 40, 40]);
             }
             img.save_png(&d.join(format!("frame_{t:04}.png")))?;
         }
+        cams_json.push(json!({"name": cam.name, "frames": frames_json}));
+    }
+    write_json(
+        &dir.join("overlays.json"),
+        &json!({"scale": scale, "fps": fps, "cameras": cams_json}),
+    )
+}
+
+/// Composites the overlays over the videos with the detector script's `--overlay` mode
+/// (`<camera>/video_NNNN.png` and `<camera>.mp4`).
+fn composite_overlays(a: &CaptureArgs, videos: &Path, dir: &Path) -> Result<()> {
+    let py = detector_python(a);
+    let script = a.out.join(".detect.py");
+    crate::util::write_atomic(&script, DETECT_PY.as_bytes())?;
+    let status = std::process::Command::new(&py)
+        .arg(&script)
+        .arg("--overlay")
+        .arg(dir)
+        .arg("--videos")
+        .arg(videos)
+        .status();
+    let _ = std::fs::remove_file(&script);
+    let status = status.map_err(|e| anyhow!("cannot run {} ({e})", py.display()))?;
+    if !status.success() {
+        bail!(
+            "{}: compositing the overlays over the videos failed ({status}); its message is above",
+            dir.display()
+        );
     }
     Ok(())
 }

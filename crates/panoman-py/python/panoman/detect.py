@@ -6,6 +6,10 @@ Usage (the detector's own environment, ``scripts/detect-setup.sh`` → ``target/
         --videos DIR --out DIR [--frames N] [--start K] [--every S] \\
         [--masks] [--mask-scale 0.25] [--cameras cam01,cam02]
 
+    # overlay mode: composite a fitted mesh's silhouettes and keypoints over the videos
+    target/detect/bin/python crates/panoman-py/python/panoman/detect.py \\
+        --overlay DIR --videos DIR [--video-scale 0.5] [--cameras cam01,cam02]
+
 or ``python -m panoman.detect ...`` where the package is installed. This file is
 self-contained: it imports nothing from ``panoman`` (the Rust CLI embeds it and runs it as a
 plain script), and numpy, OpenCV and mediapipe are imported inside the functions that use
@@ -54,6 +58,37 @@ output, i.e. holds ``detections.json``):
 Errors (a missing folder, no cameras, an unknown ``--cameras`` name, a video or image that
 cannot be decoded, zero frames, an image of another size than the camera's first): one
 message on stderr naming the file, exit status 2, nothing left behind.
+
+**Overlay mode** (``--overlay DIR``; no detection, mediapipe is not imported: numpy and
+OpenCV only). ``DIR/overlays.json`` (written by ``panoman capture``) lists per camera the frames
+to composite::
+
+    {"scale": 0.25, "fps": 60.0, "cameras": [{"name": "cam01", "frames": [
+        {"index": 0, "frame": 4, "silhouette": "cam01/silhouette_0000.png",
+         "detections": [[x, y], ...], "model": [[x, y], ...]}, ...]}, ...]}
+
+``frame`` is the camera's own video frame (0-based; decoded in order, never seeked) or the
+image's index in its folder; ``silhouette`` (relative to ``DIR``) an 8-bit grey PNG, 255
+inside the projected mesh, on a grid of ``scale`` × the full image (resized to the output
+with linear interpolation, thresholded at 128; a size that does not match ``scale`` × the
+video's is warned about); ``detections`` (the detected 2D keypoints) and ``model`` (the fitted
+mesh's keypoints projected) are full-resolution pixels (a point with a ``null`` or
+non-finite coordinate is skipped). ``--videos DIR`` holds the cameras' videos (``*.mp4``,
+``*.avi``, ``*.mov``, ``*.mkv``) or image folders as for detection; ``--cameras`` restricts
+the cameras. Each listed frame is resized by ``--video-scale`` (default 0.5, area
+interpolation), the silhouette blended in blue at 45 % opacity with a 1-pixel dark-blue
+outline along its edge, detections drawn as green and model keypoints as red filled dots
+(radius 3 px at scale 0.5, ``max(2, round(6 × scale))``). Written, each file atomically
+(a temporary name, then renamed; earlier files of the same name are replaced):
+
+* ``DIR/<cam>/video_<index:04d>.png``: the composite of each listed frame;
+* ``DIR/<cam>.mp4``: the listed frames in their listed order, ``mp4v`` (MPEG-4 part 2) at the
+  json's ``fps`` (the width and height rounded down to even numbers); a camera without
+  listed frames gets neither.
+
+Errors (no ``overlays.json`` or a malformed one, a camera without a video, a listed frame past
+the end of the video, a missing or undecodable silhouette, a video writer that cannot be
+opened): one message on stderr naming the file, exit status 2 (files already written stay).
 
 **Body: MediaPipe Pose (33 landmarks) → OpenPose BODY_25** (:data:`BODY25_FROM_MEDIAPIPE`).
 Image-normalised ``x, y`` are multiplied by the width and height; the confidence is the
@@ -117,6 +152,7 @@ __all__ = [
     "person",
     "DetectError",
     "detect",
+    "overlay",
     "parser",
     "main",
 ]
@@ -124,6 +160,7 @@ __all__ = [
 DETECTOR = "mediapipe 0.10.14 holistic model_complexity=1"
 
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov")
+OVERLAY_VIDEO_EXTENSIONS = VIDEO_EXTENSIONS + (".mkv",)
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
 
 # BODY_25 index → MediaPipe Pose landmark: an index, a pair (midpoint, lower confidence) or
@@ -313,7 +350,7 @@ class _Camera:
         self.count = None  # frames in the source (a video's header: an estimate)
 
 
-def _find_cameras(videos_dir, only):
+def _find_cameras(videos_dir, only, extensions=VIDEO_EXTENSIONS):
     if not os.path.isdir(videos_dir):
         raise DetectError(f"{videos_dir}: no such directory")
     cams = {}
@@ -321,7 +358,7 @@ def _find_cameras(videos_dir, only):
         path = os.path.abspath(os.path.join(videos_dir, entry))
         stem, ext = os.path.splitext(entry)
         cam = None
-        if os.path.isfile(path) and ext.lower() in VIDEO_EXTENSIONS:
+        if os.path.isfile(path) and ext.lower() in extensions:
             cam = _Camera(stem, path, "video")
         elif os.path.isdir(path):
             images = sorted(
@@ -340,9 +377,9 @@ def _find_cameras(videos_dir, only):
             )
         cams[cam.name] = cam
     if not cams:
+        kinds = " / ".join("*" + e for e in extensions)
         raise DetectError(
-            f"{videos_dir}: no cameras (no *.mp4 / *.avi / *.mov video, no folder of "
-            "*.png / *.jpg images)"
+            f"{videos_dir}: no cameras (no {kinds} video, no folder of *.png / *.jpg images)"
         )
     if only:
         missing = [n for n in only if n not in cams]
@@ -630,6 +667,314 @@ def detect(args):
     return summary
 
 
+# ---------------------------------------------------------------------------------------
+# Overlay mode: a fitted mesh's silhouette and keypoints composited over the videos
+
+OVERLAY_OPACITY = 0.45  # of the silhouette's blue
+OVERLAY_BLUE = (255, 90, 0)  # BGR
+OVERLAY_OUTLINE = (120, 30, 0)  # BGR: darker blue, the silhouette's edge
+OVERLAY_DETECTION = (0, 210, 0)  # BGR: green
+OVERLAY_MODEL = (0, 0, 255)  # BGR: red
+
+
+def _number(value):
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _load_overlays(overlay_dir, only):
+    """The cameras of ``overlay_dir/overlays.json`` (checked), restricted to ``only``."""
+    path = os.path.join(overlay_dir, "overlays.json")
+    if not os.path.isfile(path):
+        raise DetectError(f"{path}: no such file")
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+    except (OSError, ValueError) as e:
+        raise DetectError(f"{path}: cannot read ({e})") from e
+
+    def bad(what):
+        return DetectError(f"{path}: {what}")
+
+    if not isinstance(doc, dict):
+        raise bad("not a JSON object")
+    for key in ("scale", "fps"):
+        v = doc.get(key)
+        if not (_number(v) and math.isfinite(v) and v > 0):
+            raise bad(f"{key!r} must be a positive number (got {v!r})")
+    cams = doc.get("cameras")
+    if not isinstance(cams, list):
+        raise bad("'cameras' must be a list")
+    names = {}
+    for c, cam in enumerate(cams):
+        name = cam.get("name") if isinstance(cam, dict) else None
+        if (not isinstance(name, str) or name in ("", ".", "..") or "/" in name
+                or os.sep in name):
+            raise bad(f"cameras[{c}]: 'name' must be a camera name (got {name!r})")
+        if name in names:
+            raise bad(f"camera {name!r} is listed twice")
+        names[name] = cam
+        frames = cam.get("frames")
+        if not isinstance(frames, list):
+            raise bad(f"camera {name}: 'frames' must be a list")
+        indices = set()
+        for i, fr in enumerate(frames):
+            where = f"camera {name} frames[{i}]"
+            if not isinstance(fr, dict):
+                raise bad(f"{where}: not an object")
+            for key in ("index", "frame"):
+                v = fr.get(key)
+                if not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+                    raise bad(f"{where}: {key!r} must be an integer ≥ 0 (got {v!r})")
+            if fr["index"] in indices:
+                raise bad(f"{where}: index {fr['index']} is listed twice")
+            indices.add(fr["index"])
+            if not isinstance(fr.get("silhouette"), str) or not fr["silhouette"]:
+                raise bad(f"{where}: 'silhouette' must be a file name")
+            for key in ("detections", "model"):
+                points = fr.get(key)
+                if points is None:
+                    continue
+                if not isinstance(points, list) or not all(
+                    isinstance(p, list) and len(p) >= 2 and all(
+                        v is None or _number(v) for v in p
+                    )
+                    for p in points
+                ):
+                    raise bad(f"{where}: {key!r} must be a list of [x, y] points")
+    if only:
+        missing = [n for n in only if n not in names]
+        if missing:
+            raise bad(f"no camera {', '.join(missing)} (listed: {', '.join(names) or 'none'})")
+        return doc, [names[n] for n in only]
+    return doc, list(names.values())
+
+
+def _write_atomic(path, data):
+    """Writes ``data`` (bytes) to ``path`` through a temporary name in the same folder."""
+    tmp = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except OSError as e:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise DetectError(f"{path}: cannot write ({e.strerror or e})") from e
+
+
+def _write_png(path, image):
+    import cv2
+
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise DetectError(f"{path}: cannot encode the PNG")
+    _write_atomic(path, buf.tobytes())
+
+
+def _frames_at(cam, wanted):
+    """Yields ``(frame number, BGR image)`` of the frames ``wanted`` (sorted, distinct) of a
+    camera; a video is decoded in order from its start (no seeking)."""
+    import cv2
+
+    if cam.kind == "images":
+        for n in wanted:
+            if n >= len(cam.images):
+                raise DetectError(
+                    f"{cam.source}: no image {n} (the folder has {len(cam.images)} images)"
+                )
+            image = cv2.imread(cam.images[n], cv2.IMREAD_COLOR)
+            if image is None:
+                raise DetectError(f"{cam.images[n]}: cannot decode the image")
+            yield n, image
+        return
+    cap = _open_video(cam)
+    try:
+        pos = 0  # the next frame the stream gives
+        for n in wanted:
+            while pos < n:
+                if not cap.grab():
+                    break
+                pos += 1
+            ok, image = cap.read() if pos == n else (False, None)
+            if not ok or image is None:
+                raise DetectError(
+                    f"{cam.source}: no frame {n} (the video ends after {pos} frames)"
+                )
+            pos += 1
+            yield n, image
+    finally:
+        cap.release()
+
+
+def _dot_radius(video_scale):
+    return max(2, round(6 * video_scale))
+
+
+def _composite(frame, silhouette, detections, model, video_scale):
+    """The overlay picture: ``frame`` (BGR, already resized) with ``silhouette`` (grey, any
+    size: resized to the frame's) blended in blue and outlined, ``detections`` (green) and
+    ``model`` (red) full-resolution points as dots."""
+    import cv2
+    import numpy as np
+
+    h, w = frame.shape[:2]
+    if silhouette.shape[:2] != (h, w):
+        silhouette = cv2.resize(silhouette, (w, h), interpolation=cv2.INTER_LINEAR)
+    inside = silhouette >= 128
+    out = frame.copy()
+    if inside.any():
+        blue = np.empty_like(frame)
+        blue[:] = OVERLAY_BLUE
+        blended = cv2.addWeighted(frame, 1.0 - OVERLAY_OPACITY, blue, OVERLAY_OPACITY, 0.0)
+        out[inside] = blended[inside]
+        m = inside.astype(np.uint8)
+        edge = m > cv2.erode(m, np.ones((3, 3), np.uint8))  # 1 px inside the edge
+        out[edge] = OVERLAY_OUTLINE
+    radius = _dot_radius(video_scale)
+    shift = 4  # fixed-point sub-pixel centres
+    for points, color in ((detections or [], OVERLAY_DETECTION), (model or [], OVERLAY_MODEL)):
+        for p in points:
+            x, y = p[0], p[1]
+            if x is None or y is None or not (math.isfinite(x) and math.isfinite(y)):
+                continue
+            x, y = x * video_scale, y * video_scale
+            if not (-radius <= x <= w + radius and -radius <= y <= h + radius):
+                continue
+            centre = (int(round(x * (1 << shift))), int(round(y * (1 << shift))))
+            cv2.circle(out, centre, radius << shift, color, -1, cv2.LINE_AA, shift)
+    return out
+
+
+def _write_video(path, pictures, fps):
+    """``path`` (mp4v) of the PNG files ``pictures`` in order, through a temporary name."""
+    import cv2
+
+    first = cv2.imread(pictures[0], cv2.IMREAD_COLOR)
+    if first is None:
+        raise DetectError(f"{pictures[0]}: cannot read back")
+    h, w = first.shape[:2]
+    w, h = max(2, w - w % 2), max(2, h - h % 2)  # MPEG-4 wants even sizes
+    stem, ext = os.path.splitext(os.path.basename(path))
+    tmp = os.path.join(os.path.dirname(path), f".{stem}.tmp-{os.getpid()}{ext}")
+    writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h))
+    try:
+        if not writer.isOpened():
+            raise DetectError(
+                f"{path}: cannot open an OpenCV video writer (fourcc mp4v, {w}×{h}, {fps} fps; "
+                f"OpenCV {cv2.__version__} without an MPEG-4 encoder?)"
+            )
+        for i, p in enumerate(pictures):
+            image = first if i == 0 else cv2.imread(p, cv2.IMREAD_COLOR)
+            if image is None:
+                raise DetectError(f"{p}: cannot read back")
+            image = image[:h, :w]
+            if image.shape[:2] != (h, w):
+                raise DetectError(f"{p}: {image.shape[1]}×{image.shape[0]}, expected {w}×{h}")
+            writer.write(image)
+        writer.release()
+        if not os.path.isfile(tmp) or os.path.getsize(tmp) == 0:
+            raise DetectError(f"{path}: the video writer wrote nothing")
+        os.replace(tmp, path)
+    except BaseException:
+        writer.release()
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise
+    return w, h
+
+
+def _overlay_camera(entry, cam, overlay_dir, scale, fps, video_scale, stream):
+    import cv2
+
+    name = entry["name"]
+    frames = entry["frames"]
+    if not frames:
+        print(f"detect: overlay {name}: no frames listed, nothing written", file=stream,
+              flush=True)
+        return {"name": name, "frames": 0, "video": None}
+    cam_dir = os.path.join(overlay_dir, name)
+    os.makedirs(cam_dir, exist_ok=True)
+    need = {}  # frame number → positions in the list
+    for pos, fr in enumerate(frames):
+        need.setdefault(fr["frame"], []).append(pos)
+    pictures = [None] * len(frames)
+    full = None  # (width, height) of the source
+    warned = False
+    for n, image in _frames_at(cam, sorted(need)):
+        height, width = image.shape[:2]
+        if full is None:
+            full = (width, height)
+        elif (width, height) != full:
+            where = cam.images[n] if cam.kind == "images" else f"{cam.source} frame {n}"
+            raise DetectError(
+                f"{where}: {width}×{height}, the camera's first frame is {full[0]}×{full[1]}"
+            )
+        size = (max(1, round(width * video_scale)), max(1, round(height * video_scale)))
+        small = image if size == full else cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+        for pos in need[n]:
+            fr = frames[pos]
+            sil_path = os.path.join(overlay_dir, fr["silhouette"])
+            sil = cv2.imread(sil_path, cv2.IMREAD_GRAYSCALE)
+            if sil is None:
+                raise DetectError(f"{sil_path}: cannot decode the silhouette")
+            want = (round(width * scale), round(height * scale))
+            if not warned and (abs(sil.shape[1] - want[0]) > 1 or abs(sil.shape[0] - want[1]) > 1):
+                warned = True
+                print(
+                    f"detect: warning: {sil_path}: {sil.shape[1]}×{sil.shape[0]}, expected "
+                    f"{want[0]}×{want[1]} (scale {scale} × the video's {width}×{height}); "
+                    "stretched over the frame",
+                    file=stream, flush=True,
+                )
+            picture = _composite(small, sil, fr.get("detections"), fr.get("model"), video_scale)
+            out = os.path.join(cam_dir, f"video_{fr['index']:04d}.png")
+            _write_png(out, picture)
+            pictures[pos] = out
+    video = os.path.join(overlay_dir, f"{name}.mp4")
+    w, h = _write_video(video, pictures, fps)
+    print(f"detect: overlay {name}: {len(frames)} frames, {w}×{h} → {video}", file=stream,
+          flush=True)
+    return {"name": name, "frames": len(frames), "video": video, "width": w, "height": h}
+
+
+def overlay(args):
+    """The overlay mode (``args`` as :func:`main` parses them, ``args.overlay`` set): composites
+    the silhouettes and keypoints of ``overlays.json`` over the videos; returns a summary
+    (``{"cameras": [{"name", "frames", "video", "width", "height"}]}``)."""
+    overlay_dir = os.path.abspath(args.overlay)
+    if not os.path.isdir(overlay_dir):
+        raise DetectError(f"{overlay_dir}: no such directory")
+    video_scale = 0.5 if args.video_scale is None else args.video_scale
+    doc, entries = _load_overlays(overlay_dir, args.cameras)
+    names = [e["name"] for e in entries]
+    sources = {
+        c.name: c for c in _find_cameras(args.videos, names, OVERLAY_VIDEO_EXTENSIONS)
+    } if names else {}
+    # Everything that can be checked before decoding: silhouettes exist, image indices.
+    for e in entries:
+        cam = sources[e["name"]]
+        for fr in e["frames"]:
+            sil = os.path.join(overlay_dir, fr["silhouette"])
+            if not os.path.isfile(sil):
+                raise DetectError(f"{sil}: no such silhouette (camera {e['name']}, "
+                                  f"index {fr['index']})")
+            if cam.kind == "images" and fr["frame"] >= len(cam.images):
+                raise DetectError(
+                    f"{cam.source}: no image {fr['frame']} (the folder has "
+                    f"{len(cam.images)} images; camera {e['name']}, index {fr['index']})"
+                )
+    done = []
+    with _QuietStderr() as quiet:
+        for e in entries:
+            done.append(_overlay_camera(e, sources[e["name"]], overlay_dir, doc["scale"],
+                                        doc["fps"], video_scale, quiet.stream))
+    return {"cameras": done}
+
+
 def _positive_int(text):
     n = int(text)
     if n < 1:
@@ -655,13 +1000,17 @@ def parser():
     p = argparse.ArgumentParser(
         prog="detect.py",
         description="2D keypoints (OpenPose BODY_25 + face 70 + hands 21 JSON) of videos or "
-        f"image folders, one per camera, with {DETECTOR} (offline).",
+        f"image folders, one per camera, with {DETECTOR} (offline): --videos DIR --out DIR. "
+        "Overlay mode, --overlay DIR --videos DIR [--video-scale 0.5]: composites the "
+        "mesh silhouettes (blue) and keypoints (detections green, model red) listed in "
+        "DIR/overlays.json over the videos' frames into DIR/<cam>/video_<index>.png and "
+        "DIR/<cam>.mp4 (mp4v); no detection.",
     )
     p.add_argument("--videos", required=True, metavar="DIR",
-                   help="one video per camera (*.mp4, *.avi, *.mov; camera = file stem) "
-                   "or one image folder per camera (*.png, *.jpg)")
-    p.add_argument("--out", required=True, metavar="DIR",
-                   help="output folder (replaced atomically)")
+                   help="one video per camera (*.mp4, *.avi, *.mov; also *.mkv with --overlay; "
+                   "camera = file stem) or one image folder per camera (*.png, *.jpg)")
+    p.add_argument("--out", metavar="DIR",
+                   help="output folder (replaced atomically); required without --overlay")
     p.add_argument("--frames", type=_positive_int, metavar="N",
                    help="at most N frames per camera (default: all)")
     p.add_argument("--start", type=_non_negative_int, default=0, metavar="K",
@@ -675,12 +1024,42 @@ def parser():
     p.add_argument("--cameras", metavar="LIST",
                    type=lambda s: [c for c in (x.strip() for x in s.split(",")) if c],
                    help="comma-separated camera names (default: all)")
+    p.add_argument("--overlay", metavar="DIR",
+                   help="overlay mode: composite DIR/overlays.json's silhouettes and keypoints "
+                   "over the videos (DIR/<cam>/video_NNNN.png, DIR/<cam>.mp4) instead of "
+                   "detecting")
+    p.add_argument("--video-scale", type=_scale, metavar="F",
+                   help="with --overlay: output size relative to the video (default 0.5)")
     return p
 
 
 def main(argv=None):
     """The command line; returns the exit status (0, or 2 on an error)."""
-    args = parser().parse_args(argv)
+    p = parser()
+    args = p.parse_args(argv)
+    if args.overlay is not None:
+        given = [
+            opt for opt, on in (
+                ("--out", args.out is not None), ("--frames", args.frames is not None),
+                ("--start", args.start != 0), ("--every", args.every != 1),
+                ("--masks", args.masks), ("--mask-scale", args.mask_scale != 0.25),
+            ) if on
+        ]
+        if given:
+            p.error(f"{', '.join(given)}: not with --overlay")
+        try:
+            summary = overlay(args)
+        except DetectError as e:
+            print(f"detect: error: {e}", file=sys.stderr)
+            return 2
+        frames = sum(c["frames"] for c in summary["cameras"])
+        print(f"detect: overlay: {len(summary['cameras'])} cameras, {frames} frames → "
+              f"{os.path.abspath(args.overlay)}", file=sys.stderr)
+        return 0
+    if args.out is None:
+        p.error("the following arguments are required: --out")
+    if args.video_scale is not None:
+        p.error("--video-scale: only with --overlay")
     try:
         summary = detect(args)
     except DetectError as e:
