@@ -26,6 +26,7 @@ use crate::camera::Camera;
 use crate::error::{CaptureError, Result};
 use crate::frame::TriangulatedFrame;
 use crate::sequence::median;
+use rayon::prelude::*;
 
 /// Options of a capture.
 #[derive(Debug, Clone)]
@@ -189,6 +190,49 @@ pub fn track(
     out.held.extend(0..first);
     out.held.sort_unstable();
     Ok(out)
+}
+
+/// Tracks with the 2D detections ([`crate::reproject`]): `frames` tracked as by [`track`],
+/// then every frame's targets replaced by the robust reprojection targets of `views[t]` (per
+/// camera, the frame's 2D keypoints; empty for a camera left out) anchored at the tracked
+/// keypoints, smoothed over time like the triangulated ones (`sigma_frames`,
+/// [`crate::sequence::smooth_keypoints`]), and the sequence tracked again from them.
+///
+/// # Errors
+/// See [`track`]; a view count that differs from the frame count.
+#[allow(clippy::too_many_arguments)]
+pub fn track_2d(
+    model: &Model,
+    cameras: &[Camera],
+    views: &[Vec<Keypoints2d>],
+    frames: &[TriangulatedFrame],
+    method: Method,
+    config: &CaptureConfig,
+    options: &crate::reproject::ReprojectionOptions,
+    sigma_frames: f64,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Tracked> {
+    if views.len() != frames.len() {
+        return Err(CaptureError::Invalid(format!(
+            "{} frames of 2D views for {} triangulated frames",
+            views.len(),
+            frames.len()
+        )));
+    }
+    let first = track(model, frames, method, config, progress)?;
+    let refined: Vec<TriangulatedFrame> = views
+        .par_iter()
+        .zip(first.keypoints.par_iter())
+        .map(|(v, p)| TriangulatedFrame {
+            keypoints: crate::reproject::refine_frame(cameras, v, p, options),
+            details: BTreeMap::new(),
+            rejected: Vec::new(),
+        })
+        .collect();
+    let refined = crate::sequence::smooth_keypoints(&refined, sigma_frames);
+    let mut second = track(model, &refined, method, config, progress)?;
+    second.calibration_seconds += first.calibration_seconds;
+    Ok(second)
 }
 
 /// The 2D keypoint error of predictions in one view: per scored keypoint (TC-133 index in

@@ -33,6 +33,7 @@ pub mod frame;
 pub mod opencv_yaml;
 pub mod panoptic;
 pub mod qualisys;
+pub mod reproject;
 pub mod sequence;
 pub mod toml_calib;
 pub mod triangulate;

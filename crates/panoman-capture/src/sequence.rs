@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 
 use panoman_human::keypoints::{FACE_OFFSET, KeypointsFile};
 use panoman_interchange::keypoints_in::{Keypoints2d, read_openpose_2d};
+use panoman_mesh::geom::V3;
 use rayon::prelude::*;
 
 use crate::camera::Camera;
@@ -329,35 +330,77 @@ pub fn gaussian_sigma_frames(cutoff_hz: f64, fps: f64) -> f64 {
     (2f64.ln()).sqrt() / (2.0 * std::f64::consts::PI * cutoff_hz) * fps
 }
 
-/// Zero-phase temporal smoothing of the triangulated keypoints: each keypoint's trajectory
-/// convolved with a Gaussian of `sigma_frames` (truncated at 3σ), normalized over the frames
-/// where the keypoint exists (gaps are not filled; a point absent in a frame stays absent).
-/// `sigma_frames ≤ 0` leaves the frames unchanged.
+/// Least outlier distance of [`smooth_keypoints`]'s Hampel test, metres.
+pub const HAMPEL_MIN_M: f64 = 0.03;
+
+/// Zero-phase temporal smoothing of the triangulated keypoints, robust to isolated wrong
+/// triangulations: first a Hampel test per keypoint — a sample farther than
+/// `max(3 · 1.4826 · MAD, HAMPEL_MIN_M)` from the coordinate-wise median of the samples within
+/// `±max(3σ, 3)` frames is an outlier and dropped — then each trajectory is convolved with a
+/// Gaussian of `sigma_frames` (truncated at 3σ) over the kept samples, normalized over them.
+/// Frames whose sample was dropped get the average of their kept neighbours (or lose the point
+/// when there are none); a point absent in a frame stays absent. `sigma_frames ≤ 0` leaves the
+/// frames unchanged.
 pub fn smooth_keypoints(frames: &[TriangulatedFrame], sigma_frames: f64) -> Vec<TriangulatedFrame> {
     let mut out = frames.to_vec();
     if sigma_frames.is_nan() || sigma_frames <= 0.0 {
         return out;
     }
     let r = (3.0 * sigma_frames).ceil() as i64;
+    let rh = r.max(3);
     let w: Vec<f64> = (-r..=r)
         .map(|d| (-0.5 * (d as f64 / sigma_frames).powi(2)).exp())
         .collect();
+    let n = frames.len() as i64;
+    let sample = |s: i64, k: usize| -> Option<V3> {
+        if s < 0 || s >= n {
+            return None;
+        }
+        frames[s as usize].keypoints.points.get(&k).copied()
+    };
+    // Hampel: which samples are kept.
+    let mut kept: Vec<BTreeMap<usize, bool>> = vec![BTreeMap::new(); frames.len()];
+    for (t, f) in frames.iter().enumerate() {
+        for (&k, &p) in &f.keypoints.points {
+            let near: Vec<V3> = (-rh..=rh).filter_map(|d| sample(t as i64 + d, k)).collect();
+            let mut med = [0.0; 3];
+            for (j, m) in med.iter_mut().enumerate() {
+                let mut c: Vec<f64> = near.iter().map(|q| q[j]).collect();
+                *m = median(&mut c);
+            }
+            let dist = |q: V3| {
+                ((q[0] - med[0]).powi(2) + (q[1] - med[1]).powi(2) + (q[2] - med[2]).powi(2)).sqrt()
+            };
+            let mut dev: Vec<f64> = near.iter().map(|&q| dist(q)).collect();
+            let mad = median(&mut dev);
+            let thr = (3.0 * 1.4826 * mad).max(HAMPEL_MIN_M);
+            kept[t].insert(k, dist(p) <= thr);
+        }
+    }
     for (t, o) in out.iter_mut().enumerate() {
+        let mut lost = Vec::new();
         for (k, p) in o.keypoints.points.iter_mut() {
             let (mut acc, mut sw) = ([0.0; 3], 0.0);
             for (i, d) in (-r..=r).enumerate() {
                 let s = t as i64 + d;
-                if s < 0 || s >= frames.len() as i64 {
+                let Some(q) = sample(s, *k) else { continue };
+                if !kept[s as usize].get(k).copied().unwrap_or(false) {
                     continue;
                 }
-                if let Some(q) = frames[s as usize].keypoints.points.get(k) {
-                    for j in 0..3 {
-                        acc[j] += w[i] * q[j];
-                    }
-                    sw += w[i];
+                for j in 0..3 {
+                    acc[j] += w[i] * q[j];
                 }
+                sw += w[i];
             }
-            *p = [acc[0] / sw, acc[1] / sw, acc[2] / sw];
+            if sw > 0.0 {
+                *p = [acc[0] / sw, acc[1] / sw, acc[2] / sw];
+            } else {
+                lost.push(*k);
+            }
+        }
+        for k in lost {
+            o.keypoints.points.remove(&k);
+            o.keypoints.weights.remove(&k);
         }
     }
     out
@@ -493,6 +536,19 @@ mod tests {
             .collect();
         let s = smooth_keypoints(&noise, 1.5);
         assert!(s[10].keypoints.points[&0][0].abs() < 1e-6);
+        // One wrong triangulation 20 cm off is dropped: its frame gets its neighbours' mean
+        // and theirs stay on the line (dropping one sample of the window shifts a window's
+        // mean by w_d · d · slope / (Σw − w_d), largest at d = 1: 0.80 · 0.01 / 2.96 ≈ 2.7 mm
+        // at σ = 1.5; kept, the outlier would move its neighbour by 0.80 · 0.2 / 3.76 ≈ 4 cm).
+        let mut jump: Vec<_> = (0..20).map(|t| mk(0.01 * t as f64)).collect();
+        jump[10].keypoints.points.insert(0, [0.3, 0.0, 0.0]);
+        let s = smooth_keypoints(&jump, 1.5);
+        for (t, f) in s.iter().enumerate().take(15).skip(5) {
+            assert!(
+                (f.keypoints.points[&0][0] - 0.01 * t as f64).abs() < 2.8e-3,
+                "frame {t}"
+            );
+        }
         // 6 Hz at 60 fps: σ ≈ 1.32 frames.
         assert!((gaussian_sigma_frames(6.0, 60.0) - 1.325).abs() < 0.01);
     }

@@ -6,13 +6,14 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use panoman::{Method, Model};
 use panoman_capture::capture::{
-    CaptureConfig, HeldOut, Mask, Tracked, keypoint_tracks, mean_acceleration, track,
+    CaptureConfig, HeldOut, Mask, Tracked, keypoint_tracks, mean_acceleration, track, track_2d,
     vertex_tracks, view_errors,
 };
 use panoman_capture::frame::TriangulatedFrame;
+use panoman_capture::reproject::ReprojectionOptions;
 use panoman_capture::sequence::{
     Detections, common_frames, estimate_offsets, gaussian_sigma_frames, read_detections_dir,
-    smooth_keypoints, triangulate_sequence, triangulation_stats,
+    smooth_keypoints, triangulate_sequence, triangulation_stats, views_at,
 };
 use panoman_capture::triangulate::TriangulateOptions;
 use panoman_capture::{Camera, read_calibration};
@@ -90,6 +91,14 @@ pub struct CaptureArgs {
     /// Evaluate with every camera held out in turn.
     #[arg(long)]
     pub all_held_out: bool,
+    /// Fit the 2D detections: after tracking the triangulated keypoints, each keypoint's target
+    /// is re-solved from every view's detection by a robust reprojection term anchored at the
+    /// tracked model (Cauchy scale `--reprojection-scale-px`), and the sequence tracked again.
+    #[arg(long)]
+    pub refine_2d: bool,
+    /// Cauchy scale of the reprojection term (pixels).
+    #[arg(long, default_value_t = 15.0)]
+    pub reprojection_scale_px: f64,
     /// Skip the LBS baseline in the evaluation.
     #[arg(long)]
     pub no_lbs: bool,
@@ -349,10 +358,21 @@ pub fn run(a: CaptureArgs) -> Result<()> {
     std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
     let bar = crate::util::progress_bar(tri.len() as u64, "track");
     let t_fit = Instant::now();
-    let tracked = track(&model, &tri, Method::PanoMan, &cfg, &|_| bar.inc(1))?;
+    let tracked = track_with(
+        &a,
+        &model,
+        &cameras,
+        &dets,
+        &offsets,
+        &[],
+        &tri,
+        Method::PanoMan,
+        &cfg,
+        &|_| bar.inc(1),
+    )?;
     bar.finish_and_clear();
     let fit_s = t_fit.elapsed().as_secs_f64();
-    write_outputs(&a.out, &model, &tri, &tracked)?;
+    write_outputs(&a.out, &model, &raw, &tracked)?;
     let camera_frames: Vec<Vec<usize>> = (0..cameras.len())
         .map(|c| {
             range
@@ -507,7 +527,7 @@ fn print_summary(s: &serde_json::Value) {
     }
 }
 
-/// Meshes (OBJ) and triangulated keypoints per frame.
+/// Meshes (OBJ) and the triangulated keypoints (before smoothing) per frame.
 fn write_outputs(
     out: &Path,
     model: &Model,
@@ -656,6 +676,41 @@ fn composite_overlays(a: &CaptureArgs, videos: &Path, dir: &Path) -> Result<()> 
     Ok(())
 }
 
+/// Tracks `tri` (the common frames, cameras `skip` left out) by `method`: from the
+/// triangulated keypoints, or with `--refine-2d` from the 2D detections too.
+#[allow(clippy::too_many_arguments)]
+fn track_with(
+    a: &CaptureArgs,
+    model: &Model,
+    cameras: &[Camera],
+    dets: &Detections,
+    offsets: &[i64],
+    skip: &[usize],
+    tri: &[TriangulatedFrame],
+    method: Method,
+    cfg: &CaptureConfig,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Tracked> {
+    if !a.refine_2d {
+        return Ok(track(model, tri, method, cfg, progress)?);
+    }
+    let views: Vec<_> = common_frames(dets, offsets)
+        .map(|t| views_at(dets, offsets, t, skip))
+        .collect();
+    let o = ReprojectionOptions {
+        scale_px: a.reprojection_scale_px,
+        ..Default::default()
+    };
+    let sigma = if a.smooth_hz > 0.0 {
+        gaussian_sigma_frames(a.smooth_hz, cfg.fps)
+    } else {
+        0.0
+    };
+    Ok(track_2d(
+        model, cameras, &views, tri, method, cfg, &o, sigma, progress,
+    )?)
+}
+
 /// Fits from every camera but `h` (PanoMan and LBS) and scores in `h`.
 #[allow(clippy::too_many_arguments)]
 fn evaluate_held_out(
@@ -688,7 +743,9 @@ fn evaluate_held_out(
             .map(|&m| {
                 let (tri, bar) = (&tri, &bar);
                 s.spawn(move || {
-                    track(model, tri, m, cfg, &|_| bar.inc(1)).map_err(anyhow::Error::from)
+                    track_with(a, model, cameras, dets, offsets, &[h], tri, m, cfg, &|_| {
+                        bar.inc(1)
+                    })
                 })
             })
             .collect();
