@@ -160,11 +160,11 @@ pub fn refine_point(
     }
     let (mut n, mut conf) = (0usize, 0.0);
     for ob in &used {
-        if let Some((r, _)) = reprojection_residual(&cameras[ob.camera], x, ob.pixel) {
-            if (r[0] * r[0] + r[1] * r[1]) <= s2 {
-                n += 1;
-                conf += ob.confidence;
-            }
+        let inlier = reprojection_residual(&cameras[ob.camera], x, ob.pixel)
+            .is_some_and(|(r, _)| r[0] * r[0] + r[1] * r[1] <= s2);
+        if inlier {
+            n += 1;
+            conf += ob.confidence;
         }
     }
     Some(Refined {
@@ -216,11 +216,9 @@ pub fn refine_frame(
     let mut out = KeypointsFile::default();
     for (k, obs) in per {
         let Some(&p) = predicted.get(k) else { continue };
-        if let Some(r) = refine_point(cameras, &obs, p, o) {
-            if r.inliers > 0 {
-                out.points.insert(k, r.position);
-                out.weights.insert(k, r.confidence);
-            }
+        if let Some(r) = refine_point(cameras, &obs, p, o).filter(|r| r.inliers > 0) {
+            out.points.insert(k, r.position);
+            out.weights.insert(k, r.confidence);
         }
     }
     out
