@@ -406,6 +406,92 @@ pub fn smooth_keypoints(frames: &[TriangulatedFrame], sigma_frames: f64) -> Vec<
     out
 }
 
+/// How often camera `c` agrees with the triangulation of all cameras: the fraction of common
+/// frames in which it is an inlier for at least half of its confidently detected (≥ 0.5) body
+/// and foot keypoints that were triangulated. A camera that follows another person than the
+/// others scores near 0. `frames` are [`triangulate_sequence`]'s (common frames in order, no
+/// camera left out).
+pub fn camera_agreement(
+    frames: &[TriangulatedFrame],
+    detections: &Detections,
+    offsets: &[i64],
+    c: usize,
+) -> f64 {
+    let range = common_frames(detections, offsets);
+    let (mut agree, mut judged) = (0usize, 0usize);
+    for (i, t) in range.enumerate() {
+        let Some(frame) = frames.get(i) else { break };
+        let f = (t as i64 + offsets[c]) as usize;
+        let Some(det) = detections.views[c].get(f) else {
+            continue;
+        };
+        let (mut used, mut seen) = (0usize, 0usize);
+        for (k, (_, conf)) in det.range(..FACE_OFFSET) {
+            let Some(tri) = frame.details.get(k) else {
+                continue;
+            };
+            if *conf < 0.5 {
+                continue;
+            }
+            seen += 1;
+            used += usize::from(tri.views.contains(&c));
+        }
+        if seen >= 4 {
+            judged += 1;
+            agree += usize::from(2 * used >= seen);
+        }
+    }
+    if judged == 0 {
+        f64::NAN
+    } else {
+        agree as f64 / judged as f64
+    }
+}
+
+/// Per camera and camera frame, the bounding box (pixels `[x0, y0, x1, y1]`) of the
+/// projection of `frames`' body and foot keypoints (common frame `t` ↦ camera frame
+/// `t + offset`): where a detector should look for the person the other cameras agree on.
+pub fn person_boxes(
+    camera: &Camera,
+    frames: &[TriangulatedFrame],
+    first_frame: usize,
+    offset: i64,
+) -> BTreeMap<usize, [f64; 4]> {
+    let mut out = BTreeMap::new();
+    for (i, f) in frames.iter().enumerate() {
+        let pts: Vec<[f64; 2]> = f
+            .keypoints
+            .points
+            .range(..FACE_OFFSET)
+            .filter_map(|(_, &p)| camera.project(p))
+            .collect();
+        if pts.len() < 4 {
+            continue;
+        }
+        let b = pts.iter().fold(
+            [
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+            ],
+            |b, p| {
+                [
+                    b[0].min(p[0]),
+                    b[1].min(p[1]),
+                    b[2].max(p[0]),
+                    b[3].max(p[1]),
+                ]
+            },
+        );
+        let t = (first_frame + i) as i64 + offset;
+        if t >= 0 {
+            out.insert(t as usize, b);
+        }
+    }
+    out
+}
+
 /// Per-keypoint statistics of a triangulated sequence: TC-133 index → (frames triangulated,
 /// median reprojection error in pixels).
 pub fn triangulation_stats(frames: &[TriangulatedFrame]) -> BTreeMap<usize, (usize, f64)> {

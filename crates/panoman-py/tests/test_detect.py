@@ -1,10 +1,11 @@
 """panoman.detect: the offline 2D keypoint detector (MediaPipe Holistic → OpenPose JSON).
 
-The mapping functions run on synthetic landmarks, without mediapipe. The runs of the command
-line need mediapipe 0.10.14: in this interpreter, else the detector's own environment
-(``scripts/detect-setup.sh``: ``$PANOMAN_DETECT_VENV`` or ``target/detect``); they are
-skipped without it. The run on real videos also needs ``$PANOMAN_DETECT_VIDEOS``: a folder
-of one video per camera with one person (e.g. Pose2Sim's ``Demo_SinglePerson/videos``).
+The mapping functions (and the ``--roi`` crop geometry) run on synthetic landmarks, without
+mediapipe. The runs of the command line need mediapipe 0.10.14: in this interpreter, else the
+detector's own environment (``scripts/detect-setup.sh``: ``$PANOMAN_DETECT_VENV`` or
+``target/detect``); they are skipped without it. The runs on real videos also need
+``$PANOMAN_DETECT_VIDEOS``: a folder of one video per camera with one person (e.g. Pose2Sim's
+``Demo_SinglePerson/videos``).
 """
 
 import importlib.util
@@ -136,6 +137,93 @@ def test_person():
     json.dumps({"version": 1.3, "people": [p]})
 
 
+def test_roi_crop_geometry():
+    # The box enlarged by 25 % of its width / height per side, rounded outwards, clamped.
+    assert detect.ROI_MARGIN == 0.25
+    assert detect.roi_crop([200, 400, 600, 1200], W, H) == (100, 200, 700, 1400)
+    assert detect.roi_crop([200.3, 400.6, 599.2, 1199.9], W, H) == (100, 200, 699, 1400)
+    assert detect.roi_crop([-50, 1800, 900, 2300], W, H) == (0, 1675, 1000, 2000)
+    assert detect.roi_crop([1100, 10, 1300, 50], W, H) is None  # entirely right of the image
+    assert detect.roi_crop([500, 500, 500, 500], W, H) is None  # a point: no area
+    assert detect.roi_crop([10, 10, 30, 30], W, H, margin=0.0) == (10, 10, 30, 30)
+    crops = [(100, 200, 700, 1400), None, (0, 1675, 1000, 2000)]
+    assert detect.roi_canvas(crops) == (1000, 1200)
+    assert detect.roi_canvas([None]) is None
+    # Centred on the canvas, whole pixels.
+    assert detect.roi_offset((100, 200, 700, 1400), (1000, 1200)) == (200, 0)
+    assert detect.roi_offset((0, 1675, 1000, 2000), (1000, 1200)) == (0, 437)
+    assert detect.roi_offset((0, 0, 1000, 1200), (1000, 1200)) == (0, 0)
+
+
+def to_canvas(px, py, crop, canvas):
+    """The forward map (independent of the module's): full-image pixels → canvas-normalised."""
+    ox = (canvas[0] - (crop[2] - crop[0])) // 2
+    oy = (canvas[1] - (crop[3] - crop[1])) // 2
+    return (px - crop[0] + ox) / canvas[0], (py - crop[1] + oy) / canvas[1]
+
+
+def test_roi_point_mapping():
+    crop, canvas = (137, 421, 637, 1221), (640, 1000)  # crop 500×800, offset (70, 100)
+    for px, py in [(137, 421), (637, 1221), (300.25, 777.5), (500, 1000)]:
+        x, y = to_canvas(px, py, crop, canvas)
+        assert detect.roi_point(x, y, crop, canvas) == pytest.approx((px, py), abs=1e-9)
+    # In the padding (outside the crop), or not finite: not found.
+    for px, py in [(136, 500), (638, 500), (300, 420), (300, 1222)]:
+        assert detect.roi_point(*to_canvas(px, py, crop, canvas), crop, canvas) is None
+    assert detect.roi_point(0.0, 0.0, crop, canvas) is None
+    assert detect.roi_point(float("nan"), 0.5, crop, canvas) is None
+    # A crop as large as the canvas: canvas (0, 0) / (1, 1) are the crop's corners.
+    assert detect.roi_point(0.0, 1.0, crop, (500, 800)) == (137, 1221)
+
+
+def test_roi_results_to_openpose():
+    """Landmarks found on the canvas come out at their full-image positions (body, hands,
+    face); points in the padding are 0 0 0; groups not found stay empty."""
+    crop = detect.roi_crop([300, 500, 700, 1500], W, H)  # (200, 250, 800, 1750)
+    canvas = (800, 1600)  # crop 600×1500, centred at (100, 50)
+    truth = [(200 + 600 * (i + 1) / 34, 250 + 1500 * ((i * 7) % 33 + 1) / 34) for i in range(33)]
+    pose = [lm(*to_canvas(px, py, crop, canvas), 0.5 + i / 100) for i, (px, py) in
+            enumerate(truth)]
+    pose[7] = lm(50 / 800, 0.5, 0.9)  # left ear in the left padding
+    hand = [lm(*to_canvas(210 + 10 * i, 300 + 5 * i, crop, canvas)) for i in range(21)]
+    hand[20] = lm(0.999, 0.999)  # in the padding
+    face = [lm(*to_canvas(400 + i % 30, 400 + i // 30, crop, canvas)) for i in range(478)]
+    res = SimpleNamespace(pose_landmarks=SimpleNamespace(landmark=pose), face_landmarks=face,
+                          left_hand_landmarks=None, right_hand_landmarks=hand,
+                          segmentation_mask=None)
+    mapped = detect.roi_results(res, crop, canvas, W, H)
+    assert mapped.left_hand_landmarks is None
+    (p,) = detect.person(mapped, W, H)
+    body = triples(p["pose_keypoints_2d"])
+    for i, name in enumerate(BODY25_NAMES):
+        if name in BODY25 and name != "LEar":
+            k = MEDIAPIPE_POSE.index(BODY25[name])
+            assert body[i] == pytest.approx([*truth[k], 0.5 + k / 100], abs=2e-3), name
+    a, b = truth[11], truth[12]
+    assert body[1] == pytest.approx([(a[0] + b[0]) / 2, (a[1] + b[1]) / 2, 0.61], abs=2e-3)
+    assert body[BODY25_NAMES.index("LEar")] == [0, 0, 0]
+    hand_kp = triples(p["hand_right_keypoints_2d"])
+    assert hand_kp[0] == pytest.approx([210, 300, 1]) and hand_kp[19] == pytest.approx(
+        [400, 395, 1])
+    assert hand_kp[20] == [0, 0, 0]
+    assert p["hand_left_keypoints_2d"] == []
+    face_kp = triples(p["face_keypoints_2d"])
+    for k in (0, 30, 68, 69):
+        src = detect.FACE70_FROM_MEDIAPIPE[k]
+        assert face_kp[k] == pytest.approx([400 + src % 30, 400 + src // 30, 1], abs=2e-3)
+    nothing = SimpleNamespace(pose_landmarks=None, face_landmarks=None,
+                              left_hand_landmarks=None, right_hand_landmarks=None)
+    assert detect.person(detect.roi_results(nothing, crop, canvas, W, H), W, H) == []
+
+
+def write_roi(path, cameras):
+    path.write_text(json.dumps({"cameras": {
+        name: {"boxes": {str(n): box for n, box in boxes.items()}}
+        for name, boxes in cameras.items()
+    }}))
+    return path
+
+
 def run(python, *args, **kw):
     return subprocess.run([python, str(SCRIPT), *map(str, args)], capture_output=True,
                           text=True, timeout=120, **kw)
@@ -188,6 +276,46 @@ def test_errors_before_detection(tmp_path):
     for bad in (["--every", "0"], ["--mask-scale", "0"], ["--start", "-1"]):
         r = run(sys.executable, "--videos", tmp_path, "--out", tmp_path / "o", *bad)
         assert r.returncode == 2
+
+
+def test_roi_errors_before_detection(tmp_path):
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    (videos / "cam01.mp4").write_bytes(b"not read here")
+    (videos / "cam02.mp4").write_bytes(b"not read here")
+    good = {"cam01": {0: [1, 2, 30, 40]}}
+    roi = tmp_path / "roi.json"
+    cases = [
+        (None, [], "roi.json: no such file"),
+        ("{", [], "roi.json: cannot read"),
+        ("[]", [], 'expected {"cameras"'),
+        ('{"cameras": {}}', [], "roi.json: no cameras"),
+        ({"cam01": {"x": [1, 2, 3, 4]}}, [], "'x' is not a frame number"),
+        ({"cam01": {-1: [1, 2, 3, 4]}}, [], "'-1' is not a frame number"),
+        ({"cam01": {3: [1, 2, 3]}}, [], "camera cam01 frame 3: the box must be"),
+        ({"cam01": {3: [5, 2, 3, 4]}}, [], "x0 ≤ x1"),
+        ({"cam01": {3: [1, 2, 3, None]}}, [], "the box must be"),
+        ('{"cameras": {"cam01": {"boxes": {"1": [0, 0, 1, 1], "01": [0, 0, 1, 1]}}}}', [],
+         "frame 1 is listed twice"),
+        ('{"cameras": {"cam01": []}}', [], "'boxes' must be an object"),
+        ({"cam09": {0: [1, 2, 3, 4]}}, [], "videos: no camera cam09"),
+        (good, ["--cameras", "cam02"], "roi.json: no camera cam02 (listed: cam01)"),
+    ]
+    for content, extra, message in cases:
+        if content is None:
+            roi.unlink(missing_ok=True)
+        elif isinstance(content, str):
+            roi.write_text(content)
+        else:
+            write_roi(roi, content)
+        r = run(sys.executable, "--videos", videos, "--out", tmp_path / "out", "--roi", roi,
+                *extra)
+        assert r.returncode == 2 and message in r.stderr, (content, r.stderr)
+        assert r.stderr.count("\n") == 1, r.stderr
+    assert not (tmp_path / "out").exists()
+    write_roi(roi, good)
+    r = run(sys.executable, "--videos", videos, "--overlay", tmp_path, "--roi", roi)
+    assert r.returncode == 2 and "--roi: not with --overlay" in r.stderr, r.stderr
 
 
 @pytest.fixture(scope="module")
@@ -297,6 +425,96 @@ def test_run_on_synthetic_inputs(detector, tmp_path):
     assert sorted(p.name for p in (tmp_path / "res").iterdir()) == ["det"]
 
 
+def test_roi_run_on_synthetic_inputs(detector, tmp_path):
+    """--roi: only the file's cameras, every selected frame written (no box: nobody), the
+    detections.json fields, masks, a new --out folder next to a detection folder."""
+    inputs = tmp_path / "in"
+    r = subprocess.run([detector, "-c", MAKE_INPUTS, str(inputs)], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    (inputs / "broken" / "camC.avi").unlink()
+    # camA 96×64, frames 0–5: boxes on 0 (partly outside), 1, 3 (entirely outside), 9 (past
+    # the selection); camB's image folder is not in the file.
+    roi = write_roi(tmp_path / "roi.json", {"camA": {
+        0: [-10, 20, 40, 60], 1: [30.5, 10, 70, 50], 3: [200, 10, 300, 50], 9: [0, 0, 96, 64],
+    }})
+    main = tmp_path / "det"
+    r = run(detector, "--videos", inputs, "--out", main, "--cameras", "camA")
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "det-roi"
+    r = run(detector, "--videos", inputs, "--out", out, "--roi", roi, "--masks",
+            "--mask-scale", "0.5", "--frames", "5")
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["det", "det-roi", "in", "roi.json"]
+    summary = json.loads((out / "detections.json").read_text())
+    (c,) = summary["cameras"]
+    assert c["name"] == "camA" and c["frames"] == 5 and c["found_body"] == 0
+    assert c["roi"] == str(roi) and c["roi_frames"] == 2
+    # crops: frame 0 (0, 10, 53, 64), 1 (20, 0, 80, 60), 9 (0, 0, 96, 64) → canvas 96×64
+    assert c["roi_canvas"] == [96, 64]
+    assert sorted(p.name for p in out.iterdir()) == ["camA", "detections.json"]
+    assert sorted(p.name for p in (out / "camA").iterdir()) == [
+        f"camA_{n:012d}_{kind}" for n in range(5) for kind in ("keypoints.json", "mask.png")
+    ]
+    for n in range(5):
+        doc = json.loads((out / "camA" / f"camA_{n:012d}_keypoints.json").read_text())
+        assert doc == {"version": 1.3, "people": []}
+    png = (out / "camA" / "camA_000000000003_mask.png").read_bytes()
+    assert int.from_bytes(png[16:20], "big") == 48 and int.from_bytes(png[20:24], "big") == 32
+    assert "roi" not in json.loads((main / "detections.json").read_text())["cameras"][0]
+    # --cameras restricts the file's cameras; the earlier ROI output is replaced.
+    write_roi(roi, {"camA": {0: [0, 0, 10, 10]}, "camB": {1: [0, 0, 60, 40]}})
+    r = run(detector, "--videos", inputs, "--out", out, "--roi", roi, "--cameras", "camB")
+    assert r.returncode == 0, r.stderr
+    (c,) = json.loads((out / "detections.json").read_text())["cameras"]
+    assert (c["name"], c["frames"], c["roi_frames"], c["roi_canvas"]) == ("camB", 3, 1, [60, 40])
+    assert sorted(p.name for p in out.iterdir()) == ["camB", "detections.json"]
+
+
+ROI_SEGMENTATION = """
+import importlib.util, json, sys
+import numpy as np
+spec = importlib.util.spec_from_file_location("detect", sys.argv[1])
+d = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(d)
+crop, canvas = (30, 20, 70, 50), (50, 40)  # crop 40×30, centred at (5, 5)
+seg = np.zeros((40, 50), np.float32)
+seg[5:35, 5:45] = 0.25  # the crop's area
+seg[10, 8] = 1.0  # crop pixel (3, 5) → image (33, 25)
+seg[0, 0] = 1.0  # padding: dropped
+full = d._roi_segmentation(seg, crop, canvas, 100, 80)
+small = d._roi_segmentation(seg[::2, ::2], crop, canvas, 100, 80)  # another size: resized
+rgb = d._roi_canvas_image(np.arange(80 * 100 * 3, dtype=np.uint32).reshape(80, 100, 3)
+                          .astype(np.uint8), crop, canvas)
+print(json.dumps({
+    "shape": list(full.shape), "ones": np.argwhere(full == 1.0).tolist(),
+    "quarter": [int((full == 0.25).sum()), np.argwhere(full == 0.25).min(0).tolist(),
+                np.argwhere(full == 0.25).max(0).tolist()],
+    "small": list(small.shape), "none": float(d._roi_segmentation(None, crop, canvas, 100,
+                                                                    80).sum()),
+    "rgb": [list(rgb.shape), rgb[:5].sum().item(), rgb[5, 5].tolist(),
+            rgb[34, 44].tolist(), rgb[35:].sum().item()],
+    "bgr": [(20 * 100 + 30) * 3 % 256, (49 * 100 + 69) * 3 % 256],
+}))
+"""
+
+
+def test_roi_segmentation_paste(opencv):
+    r = subprocess.run([opencv, "-c", ROI_SEGMENTATION, str(SCRIPT)], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    got = json.loads(r.stdout)
+    assert got["shape"] == [80, 100] and got["ones"] == [[25, 33]]
+    assert got["quarter"] == [40 * 30 - 1, [20, 30], [49, 69]]
+    assert got["small"] == [80, 100] and got["none"] == 0.0
+    shape, top, first, last, bottom = got["rgb"]
+    assert shape == [40, 50, 3] and top == 0 and bottom == 0
+    # The crop's BGR pixel (x 30, y 20) as RGB at the canvas's (5, 5), (69, 49) at (44, 34).
+    b0, b1 = got["bgr"]
+    assert first == [(b0 + 2) % 256, (b0 + 1) % 256, b0]
+    assert last == [(b1 + 2) % 256, (b1 + 1) % 256, b1]
+
+
 @pytest.mark.skipif(not os.environ.get("PANOMAN_DETECT_VIDEOS"),
                     reason="set PANOMAN_DETECT_VIDEOS to a folder of videos of one person")
 def test_run_on_videos(detector, tmp_path):
@@ -322,6 +540,46 @@ def test_run_on_videos(detector, tmp_path):
                 d = [((p[key][0] - q[0]) ** 2 + (p[key][1] - q[1]) ** 2) ** 0.5 for q in (s, o)]
                 assert d[0] < d[1], key
         assert (out / cam / f"{cam}_{n:012d}_mask.png").exists()
+
+
+@pytest.mark.skipif(not os.environ.get("PANOMAN_DETECT_VIDEOS"),
+                    reason="set PANOMAN_DETECT_VIDEOS to a folder of videos of one person")
+def test_roi_run_on_videos(detector, tmp_path):
+    """--roi around the person the full frame finds: the same body, within a few pixels."""
+    videos = Path(os.environ["PANOMAN_DETECT_VIDEOS"])
+    exts = (".mp4", ".avi", ".mov")
+    cam = sorted(p.stem for p in videos.iterdir() if p.suffix.lower() in exts)[0]
+    full = tmp_path / "full"
+    r = run(detector, "--videos", videos, "--out", full, "--frames", "4", "--cameras", cam)
+    assert r.returncode == 0, r.stderr
+    bodies, boxes = {}, {}
+    for n in range(4):
+        (p,) = json.loads((full / cam / f"{cam}_{n:012d}_keypoints.json").read_text())["people"]
+        bodies[n] = triples(p["pose_keypoints_2d"])
+        pts = [(x, y) for x, y, c in bodies[n] if c > 0.5]
+        xs, ys = [x for x, _ in pts], [y for _, y in pts]
+        pad = 0.1 * (max(ys) - min(ys))  # the keypoints' box, a little larger (head, feet)
+        boxes[n] = [min(xs) - pad, min(ys) - 2 * pad, max(xs) + pad, max(ys) + pad]
+    roi = write_roi(tmp_path / "roi.json", {cam: {n: boxes[n] for n in (0, 1, 2)}})
+    out = tmp_path / "roi"
+    r = run(detector, "--videos", videos, "--out", out, "--frames", "4", "--roi", roi,
+            "--masks")
+    assert r.returncode == 0, r.stderr
+    (c,) = json.loads((out / "detections.json").read_text())["cameras"]
+    assert c["frames"] == 4 and c["roi_frames"] == 3 and c["found_body"] == 3
+    for n in range(3):
+        (p,) = json.loads((out / cam / f"{cam}_{n:012d}_keypoints.json").read_text())["people"]
+        body = triples(p["pose_keypoints_2d"])
+        height = boxes[n][3] - boxes[n][1]
+        errors = sorted(
+            ((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2) ** 0.5
+            for a, b in zip(body, bodies[n]) if a[2] > 0.5 and b[2] > 0.5
+        )
+        assert len(errors) >= 15, errors
+        assert errors[len(errors) // 2] < 0.03 * height, (n, errors)  # the median
+    doc = json.loads((out / cam / f"{cam}_{3:012d}_keypoints.json").read_text())
+    assert doc["people"] == []  # no box
+    assert (out / cam / f"{cam}_{3:012d}_mask.png").exists()
 
 
 # ---------------------------------------------------------------------------------------

@@ -12,8 +12,9 @@ use panoman_capture::capture::{
 use panoman_capture::frame::TriangulatedFrame;
 use panoman_capture::reproject::ReprojectionOptions;
 use panoman_capture::sequence::{
-    Detections, common_frames, estimate_offsets, gaussian_sigma_frames, read_detections_dir,
-    smooth_keypoints, triangulate_sequence, triangulation_stats, views_at,
+    Detections, camera_agreement, common_frames, estimate_offsets, gaussian_sigma_frames,
+    person_boxes, read_detections_dir, smooth_keypoints, triangulate_sequence, triangulation_stats,
+    views_at,
 };
 use panoman_capture::triangulate::TriangulateOptions;
 use panoman_capture::{Camera, read_calibration};
@@ -91,11 +92,12 @@ pub struct CaptureArgs {
     /// Evaluate with every camera held out in turn.
     #[arg(long)]
     pub all_held_out: bool,
-    /// Fit the 2D detections: after tracking the triangulated keypoints, each keypoint's target
-    /// is re-solved from every view's detection by a robust reprojection term anchored at the
-    /// tracked model (Cauchy scale `--reprojection-scale-px`), and the sequence tracked again.
+    /// Fit the triangulated keypoints only. By default the 2D detections are fitted too:
+    /// after tracking the triangulated keypoints, each keypoint's target is re-solved from
+    /// every view's detection by a robust reprojection term anchored at the tracked model
+    /// (Cauchy scale `--reprojection-scale-px`), and the sequence tracked again.
     #[arg(long)]
-    pub refine_2d: bool,
+    pub no_refine_2d: bool,
     /// Cauchy scale of the reprojection term (pixels).
     #[arg(long, default_value_t = 15.0)]
     pub reprojection_scale_px: f64,
@@ -230,6 +232,106 @@ fn read_masks(
         .collect()
 }
 
+/// Least fraction of frames in which a camera must agree with the others
+/// ([`camera_agreement`]) to be taken as seeing the same person.
+const MIN_AGREEMENT: f64 = 0.5;
+
+/// The frame offsets: given (`--offsets`) or estimated; with the JSON of `summary.json`.
+fn synchronize(
+    a: &CaptureArgs,
+    cameras: &[Camera],
+    dets: &Detections,
+) -> Result<(Vec<i64>, serde_json::Value)> {
+    Ok(match &a.offsets {
+        Some(o) => (o.clone(), json!({"given": o})),
+        None => {
+            let est = estimate_offsets(cameras, dets, a.max_offset)?;
+            let o: Vec<i64> = est.iter().map(|e| e.offset).collect();
+            let rows: Vec<_> = est
+                .iter()
+                .map(|e| {
+                    json!({"camera": e.camera, "offset": e.offset, "median_px": e.median_px,
+                           "median_px_at_zero": e.median_px_at_zero, "pairs": e.pairs})
+                })
+                .collect();
+            (o, json!({"estimated": rows}))
+        }
+    })
+}
+
+/// Detects camera `c` again inside the boxes where the other cameras' triangulated person
+/// projects (every frame of the camera gets the nearest box: its own offset is unknown), and
+/// replaces its detection folder.
+#[allow(clippy::too_many_arguments)]
+fn redetect_camera(
+    a: &CaptureArgs,
+    videos: &Path,
+    det_dir: &Path,
+    cameras: &[Camera],
+    dets: &Detections,
+    offsets: &[i64],
+    c: usize,
+    topts: &TriangulateOptions,
+) -> Result<()> {
+    let others = triangulate_sequence(cameras, dets, offsets, &[c], topts)?;
+    let first = common_frames(dets, offsets).start;
+    let boxes = person_boxes(&cameras[c], &others, first, 0);
+    if boxes.is_empty() {
+        bail!(
+            "camera {}: the other cameras' person does not project into it",
+            cameras[c].name
+        );
+    }
+    let n = dets.frames(c);
+    let all: BTreeMap<String, [f64; 4]> = (0..n)
+        .filter_map(|f| {
+            let near = boxes
+                .range(..=f)
+                .next_back()
+                .map(|(&k, b)| (f - k, *b))
+                .into_iter()
+                .chain(boxes.range(f..).next().map(|(&k, b)| (k - f, *b)))
+                .min_by_key(|(d, _)| *d)?;
+            Some((f.to_string(), near.1))
+        })
+        .collect();
+    let name = &cameras[c].name;
+    let roi = a.out.join(format!(".roi-{name}.json"));
+    write_json(&roi, &json!({"cameras": {name.as_str(): {"boxes": all}}}))?;
+    let tmp = a.out.join(format!(".detections-{name}"));
+    let _ = std::fs::remove_dir_all(&tmp);
+    let py = detector_python(a);
+    let script = a.out.join(".detect.py");
+    crate::util::write_atomic(&script, DETECT_PY.as_bytes())?;
+    let status = std::process::Command::new(&py)
+        .arg(&script)
+        .arg("--videos")
+        .arg(videos)
+        .arg("--out")
+        .arg(&tmp)
+        .arg("--masks")
+        .arg("--roi")
+        .arg(&roi)
+        .arg("--cameras")
+        .arg(name)
+        .status();
+    let _ = std::fs::remove_file(&script);
+    let _ = std::fs::remove_file(&roi);
+    let status = status.map_err(|e| anyhow!("cannot run {} ({e})", py.display()))?;
+    if !status.success() {
+        let _ = std::fs::remove_dir_all(&tmp);
+        bail!("camera {name}: detecting again inside the person's boxes failed ({status})");
+    }
+    let old = det_dir.join(name);
+    let aside = a.out.join(format!(".detections-{name}-first"));
+    let _ = std::fs::remove_dir_all(&aside);
+    std::fs::rename(&old, &aside).with_context(|| old.display().to_string())?;
+    std::fs::rename(tmp.join(name), &old).with_context(|| old.display().to_string())?;
+    let _ = std::fs::remove_dir_all(&tmp);
+    let _ = std::fs::remove_dir_all(&aside);
+    Ok(())
+}
+
 /// Runs `panoman capture`.
 pub fn run(a: CaptureArgs) -> Result<()> {
     let t_all = Instant::now();
@@ -296,23 +398,52 @@ pub fn run(a: CaptureArgs) -> Result<()> {
         .unwrap_or(0.25);
     let model = Model::load(&a.model)?;
 
-    // Synchronization.
+    // Synchronization, triangulation, and the person check (cameras that follow another
+    // person are re-detected around the person the other cameras agree on).
     let t_sync = Instant::now();
-    let (offsets, sync) = match &a.offsets {
-        Some(o) => (o.clone(), json!({"given": o})),
-        None => {
-            let est = estimate_offsets(&cameras, &dets, a.max_offset)?;
-            let o: Vec<i64> = est.iter().map(|e| e.offset).collect();
-            let rows: Vec<_> = est
-                .iter()
-                .map(|e| {
-                    json!({"camera": e.camera, "offset": e.offset, "median_px": e.median_px,
-                           "median_px_at_zero": e.median_px_at_zero, "pairs": e.pairs})
-                })
-                .collect();
-            (o, json!({"estimated": rows}))
-        }
+    let mut dets = dets;
+    let (mut offsets, mut sync) = synchronize(&a, &cameras, &dets)?;
+    let topts = TriangulateOptions {
+        threshold_px: a.threshold_px,
+        ..Default::default()
     };
+    let mut raw = triangulate_sequence(&cameras, &dets, &offsets, &[], &topts)?;
+    let mut agreement: Vec<f64> = (0..cameras.len())
+        .map(|c| camera_agreement(&raw, &dets, &offsets, c))
+        .collect();
+    let mut redetected = Vec::new();
+    if let Some(v) = &videos {
+        for c in 0..cameras.len() {
+            if agreement[c] < MIN_AGREEMENT {
+                eprintln!(
+                    "capture: camera {} agrees with the others in {:.0} % of the frames: \
+                     detecting again around the person the others see",
+                    cameras[c].name,
+                    100.0 * agreement[c]
+                );
+                redetect_camera(&a, v, &det_dir, &cameras, &dets, &offsets, c, &topts)?;
+                redetected.push(cameras[c].name.clone());
+            }
+        }
+        if !redetected.is_empty() {
+            dets = read_detections_dir(&det_dir, &cameras, 0)?;
+            (offsets, sync) = synchronize(&a, &cameras, &dets)?;
+            raw = triangulate_sequence(&cameras, &dets, &offsets, &[], &topts)?;
+            agreement = (0..cameras.len())
+                .map(|c| camera_agreement(&raw, &dets, &offsets, c))
+                .collect();
+        }
+    }
+    for (c, &g) in agreement.iter().enumerate() {
+        if g < MIN_AGREEMENT {
+            eprintln!(
+                "warning: camera {} agrees with the others in {:.0} % of the frames (another \
+                 person?); its held-out scores compare different people",
+                cameras[c].name,
+                100.0 * g
+            );
+        }
+    }
     let sync_s = t_sync.elapsed().as_secs_f64();
     let range = common_frames(&dets, &offsets);
     if range.is_empty() {
@@ -326,10 +457,6 @@ pub fn run(a: CaptureArgs) -> Result<()> {
         cameras.len(),
         range.len()
     );
-    let topts = TriangulateOptions {
-        threshold_px: a.threshold_px,
-        ..Default::default()
-    };
     let cfg = CaptureConfig {
         calibrate_shape: a.calibrate_shape,
         keypoint_sigma: a.keypoint_sigma,
@@ -347,7 +474,6 @@ pub fn run(a: CaptureArgs) -> Result<()> {
 
     // All cameras: triangulate and track (PanoMan).
     let t_tri = Instant::now();
-    let raw = triangulate_sequence(&cameras, &dets, &offsets, &[], &topts)?;
     let sigma = if a.smooth_hz > 0.0 {
         gaussian_sigma_frames(a.smooth_hz, fps)
     } else {
@@ -356,7 +482,8 @@ pub fn run(a: CaptureArgs) -> Result<()> {
     let tri = smooth_keypoints(&raw, sigma);
     let tri_s = t_tri.elapsed().as_secs_f64();
     std::fs::create_dir_all(&a.out).with_context(|| a.out.display().to_string())?;
-    let bar = crate::util::progress_bar(tri.len() as u64, "track");
+    let passes = if a.no_refine_2d { 1 } else { 2 };
+    let bar = crate::util::progress_bar((passes * tri.len()) as u64, "track");
     let t_fit = Instant::now();
     let tracked = track_with(
         &a,
@@ -441,6 +568,8 @@ pub fn run(a: CaptureArgs) -> Result<()> {
         "fps": fps,
         "synchronization": sync,
         "offsets": offsets,
+        "person_agreement": cameras.iter().zip(&agreement).map(|(c, g)| (c.name.clone(), *g)).collect::<BTreeMap<_, _>>(),
+        "redetected": redetected,
         "common_frames": [range.start, range.end],
         "frames": tri.len(),
         "seconds_per_frame": {
@@ -691,7 +820,7 @@ fn track_with(
     cfg: &CaptureConfig,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Tracked> {
-    if !a.refine_2d {
+    if a.no_refine_2d {
         return Ok(track(model, tri, method, cfg, progress)?);
     }
     let views: Vec<_> = common_frames(dets, offsets)
@@ -728,8 +857,9 @@ fn evaluate_held_out(
 ) -> Result<HeldOut> {
     let raw = triangulate_sequence(cameras, dets, offsets, &[h], topts)?;
     let tri = smooth_keypoints(&raw, sigma);
+    let passes = if a.no_refine_2d { 1 } else { 2 };
     let bar = crate::util::progress_bar(
-        (tri.len() * if a.no_lbs { 1 } else { 2 }) as u64,
+        (passes * tri.len() * if a.no_lbs { 1 } else { 2 }) as u64,
         &format!("held out {}", cameras[h].name),
     );
     let methods: Vec<Method> = if a.no_lbs {

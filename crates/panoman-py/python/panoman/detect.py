@@ -4,7 +4,7 @@ Usage (the detector's own environment, ``scripts/detect-setup.sh`` → ``target/
 
     target/detect/bin/python crates/panoman-py/python/panoman/detect.py \\
         --videos DIR --out DIR [--frames N] [--start K] [--every S] \\
-        [--masks] [--mask-scale 0.25] [--cameras cam01,cam02]
+        [--masks] [--mask-scale 0.25] [--cameras cam01,cam02] [--roi roi.json]
 
     # overlay mode: composite a fitted mesh's silhouettes and keypoints over the videos
     target/detect/bin/python crates/panoman-py/python/panoman/detect.py \\
@@ -28,7 +28,32 @@ opencv-contrib-python and protobuf < 5, hence its own virtual environment
 
 Holistic follows one person: the one its pose detector picks in the first frame (then
 tracked). That need not be the subject: with two people in view, cameras can follow
-different people. Check the output (or the masks) for scenes with bystanders.
+different people. Check the output (or the masks) for scenes with bystanders, and detect
+such a camera again with ``--roi``.
+
+**Regions of interest** (``--roi FILE``): only inside a box per frame, to make Holistic follow
+the person in it. ``FILE`` (JSON)::
+
+    {"cameras": {"cam03": {"boxes": {"0": [x0, y0, x1, y1], "1": [...], ...}}, ...}}
+
+gives per camera and frame (the source's own 0-based frame number, as in the output's file
+names) a box in full-resolution pixels (``x0 ≤ x1``, ``y0 ≤ y1``; it may reach outside the
+image). Only the cameras named in ``FILE`` are detected (``--cameras`` restricts them
+further; a name not in ``FILE`` is an error); frames are selected as without it. A selected
+frame with a box: the box is enlarged by 25 % of its width / height on each side
+(:data:`ROI_MARGIN`), clamped to the image and rounded outwards to whole pixels
+(:func:`roi_crop`); that crop is pasted, unscaled, at the centre of a black canvas of a fixed
+size per camera, the largest crop width × the largest crop height among the camera's boxes
+(:func:`roi_canvas`, :func:`roi_offset`), so that the one Holistic instance per camera (video
+mode, as without ``--roi``) always sees images of one size at the full resolution. Every
+landmark (body, hands, face) is mapped back to full-image pixels (:func:`roi_point`: a pure
+translation); a point outside the crop (in the padding) is not found, ``0 0 0``. The mask:
+the canvas's segmentation inside the crop pasted into a full-size zero mask, then
+``--mask-scale`` as without ``--roi``. A frame without a box, or whose enlarged box lies
+entirely outside the image: nothing is detected, ``"people": []`` and an all-zero mask.
+``--out`` is handled as without ``--roi`` (a new folder, or an earlier output, which is replaced
+as a whole: to redo one camera of a detection folder, write into a new folder and move the
+camera's sub-folder over).
 
 **Input.** ``--videos DIR`` holds one video per camera (``*.mp4``, ``*.avi``, ``*.mov``; the
 camera name is the file's stem) and/or one sub-folder of images per camera (``*.png``,
@@ -53,11 +78,14 @@ output, i.e. holds ``detections.json``):
   ``frames`` (written), ``fps`` (of the source; ``null`` for images), ``width``, ``height``
   and the number of frames where the body, left hand, right hand and face were found;
   ``seconds_per_frame`` (wall time, decoding and writing included, over all cameras) and
-  ``mask_scale`` (``null`` without ``--masks``).
+  ``mask_scale`` (``null`` without ``--masks``). With ``--roi``, each camera also has ``roi``
+  (the ``FILE``'s absolute path), ``roi_frames`` (the written frames that had a box inside the
+  image) and ``roi_canvas`` (``[width, height]`` of Holistic's input; ``null`` when no box).
 
 Errors (a missing folder, no cameras, an unknown ``--cameras`` name, a video or image that
-cannot be decoded, zero frames, an image of another size than the camera's first): one
-message on stderr naming the file, exit status 2, nothing left behind.
+cannot be decoded, zero frames, an image of another size than the camera's first, a missing or
+malformed ``--roi`` file, a camera of it without a video): one message on stderr naming the
+file, exit status 2, nothing left behind.
 
 **Overlay mode** (``--overlay DIR``; no detection, mediapipe is not imported: numpy and
 OpenCV only). ``DIR/overlays.json`` (written by ``panoman capture``) lists per camera the frames
@@ -150,6 +178,13 @@ __all__ = [
     "hand21",
     "face70",
     "person",
+    "ROI_MARGIN",
+    "roi_crop",
+    "roi_canvas",
+    "roi_offset",
+    "roi_point",
+    "roi_landmarks",
+    "roi_results",
     "DetectError",
     "detect",
     "overlay",
@@ -333,6 +368,121 @@ def person(results, width, height):
 
 
 # ---------------------------------------------------------------------------------------
+# Regions of interest (--roi): Holistic on a crop around a box, mapped back to the image
+
+ROI_MARGIN = 0.25  # the box is enlarged by this fraction of its width / height on each side
+
+
+def roi_crop(box, width, height, margin=ROI_MARGIN):
+    """The crop ``(x0, y0, x1, y1)`` (whole pixels, ``x0 ≤ x < x1``) of a box ``[x0, y0, x1,
+    y1]`` (full-image pixels) in a ``width`` × ``height`` image: the box enlarged by ``margin``
+    × its width / height on each side, rounded outwards and clamped to the image; ``None``
+    when nothing of it is inside the image."""
+    bx0, by0, bx1, by1 = (float(v) for v in box)
+    mx, my = margin * (bx1 - bx0), margin * (by1 - by0)
+    x0 = max(0, math.floor(bx0 - mx))
+    y0 = max(0, math.floor(by0 - my))
+    x1 = min(int(width), math.ceil(bx1 + mx))
+    y1 = min(int(height), math.ceil(by1 + my))
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return (x0, y0, x1, y1)
+
+
+def roi_canvas(crops):
+    """The fixed size ``(width, height)`` of Holistic's input for a camera's crops: the largest
+    crop width and the largest crop height (``None`` without crops)."""
+    crops = [c for c in crops if c is not None]
+    if not crops:
+        return None
+    return (max(c[2] - c[0] for c in crops), max(c[3] - c[1] for c in crops))
+
+
+def roi_offset(crop, canvas):
+    """Where the crop's top-left pixel lies on the canvas: centred, whole pixels."""
+    return ((canvas[0] - (crop[2] - crop[0])) // 2, (canvas[1] - (crop[3] - crop[1])) // 2)
+
+
+def roi_point(x, y, crop, canvas):
+    """Full-image pixels ``(x, y)`` of a point at canvas-normalised ``x, y`` (mediapipe's
+    landmark coordinates on the canvas); ``None`` when it is outside the crop (in the padding)
+    or not finite."""
+    ox, oy = roi_offset(crop, canvas)
+    cx, cy = x * canvas[0] - ox, y * canvas[1] - oy
+    if not (0.0 <= cx <= crop[2] - crop[0] and 0.0 <= cy <= crop[3] - crop[1]):
+        return None
+    return (crop[0] + cx, crop[1] + cy)
+
+
+class _Point:
+    __slots__ = ("x", "y", "visibility")
+
+    def __init__(self, x, y, visibility):
+        self.x, self.y, self.visibility = x, y, visibility
+
+
+def roi_landmarks(landmarks, crop, canvas, width, height):
+    """Canvas landmarks (objects with ``x``, ``y`` and optionally ``visibility``, or a
+    ``NormalizedLandmarkList``) as landmarks normalised to the full ``width`` × ``height``
+    image, for :func:`body25`, :func:`hand21` and :func:`face70`; a point outside the crop
+    becomes ``x = y = -1``, visibility 0 (not found). ``None`` stays ``None``."""
+    if landmarks is None:
+        return None
+    out = []
+    for lm in _landmarks(landmarks):
+        p = roi_point(float(lm.x), float(lm.y), crop, canvas)
+        if p is None:
+            out.append(_Point(-1.0, -1.0, 0.0))
+        else:
+            out.append(_Point(p[0] / width, p[1] / height, getattr(lm, "visibility", 1.0)))
+    return out
+
+
+_GROUPS = ("pose_landmarks", "face_landmarks", "left_hand_landmarks", "right_hand_landmarks")
+
+
+def roi_results(results, crop, canvas, width, height):
+    """A Holistic result on the canvas with its four landmark groups mapped to the full image
+    (:func:`roi_landmarks`), for :func:`person`."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(**{
+        key: roi_landmarks(getattr(results, key, None), crop, canvas, width, height)
+        for key in _GROUPS
+    })
+
+
+def _roi_segmentation(segmentation, crop, canvas, width, height):
+    """The full-image segmentation (float, ``height`` × ``width``): the canvas's inside the
+    crop, 0 elsewhere."""
+    import cv2
+    import numpy as np
+
+    full = np.zeros((height, width), np.float32)
+    if segmentation is None:
+        return full
+    seg = np.asarray(segmentation, np.float32)
+    if seg.shape[:2] != (canvas[1], canvas[0]):
+        seg = cv2.resize(seg, canvas, interpolation=cv2.INTER_LINEAR)
+    x0, y0, x1, y1 = crop
+    ox, oy = roi_offset(crop, canvas)
+    full[y0:y1, x0:x1] = seg[oy:oy + y1 - y0, ox:ox + x1 - x0]
+    return full
+
+
+def _roi_canvas_image(image, crop, canvas):
+    """The RGB canvas: the crop of the BGR ``image`` centred on black."""
+    import cv2
+    import numpy as np
+
+    x0, y0, x1, y1 = crop
+    ox, oy = roi_offset(crop, canvas)
+    rgb = np.zeros((canvas[1], canvas[0], 3), np.uint8)
+    rgb[oy:oy + y1 - y0, ox:ox + x1 - x0] = cv2.cvtColor(image[y0:y1, x0:x1], cv2.COLOR_BGR2RGB)
+    return rgb
+
+
+# ---------------------------------------------------------------------------------------
 # Command line
 
 
@@ -389,6 +539,50 @@ def _find_cameras(videos_dir, only, extensions=VIDEO_EXTENSIONS):
             )
         return [cams[n] for n in only]
     return list(cams.values())
+
+
+def _load_roi(path):
+    """The boxes of a ``--roi`` file, checked: ``{camera: {frame: (x0, y0, x1, y1)}}``."""
+    if not os.path.isfile(path):
+        raise DetectError(f"{path}: no such file")
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+    except (OSError, ValueError) as e:
+        raise DetectError(f"{path}: cannot read ({e})") from e
+
+    def bad(what):
+        return DetectError(f"{path}: {what}")
+
+    if not isinstance(doc, dict) or not isinstance(doc.get("cameras"), dict):
+        raise bad("expected {\"cameras\": {\"<camera>\": {\"boxes\": {\"<frame>\": "
+                  "[x0, y0, x1, y1], ...}}, ...}}")
+    if not doc["cameras"]:
+        raise bad("no cameras")
+    roi = {}
+    for name, cam in doc["cameras"].items():
+        if name in ("", ".", "..") or "/" in name or os.sep in name:
+            raise bad(f"{name!r} is not a camera name")
+        boxes = cam.get("boxes") if isinstance(cam, dict) else None
+        if not isinstance(boxes, dict):
+            raise bad(f"camera {name}: 'boxes' must be an object (frame → [x0, y0, x1, y1])")
+        frames = {}
+        for key, box in boxes.items():
+            if not (key.isascii() and key.isdigit()):
+                raise bad(f"camera {name}: {key!r} is not a frame number (0, 1, …)")
+            n = int(key)
+            if n in frames:
+                raise bad(f"camera {name}: frame {n} is listed twice")
+            if not (
+                isinstance(box, list) and len(box) == 4
+                and all(_number(v) and math.isfinite(v) for v in box)
+                and box[0] <= box[2] and box[1] <= box[3]
+            ):
+                raise bad(f"camera {name} frame {key}: the box must be [x0, y0, x1, y1], "
+                          f"x0 ≤ x1, y0 ≤ y1 (got {box!r})")
+            frames[n] = tuple(float(v) for v in box)
+        roi[name] = frames
+    return roi
 
 
 def _open_video(cam):
@@ -537,7 +731,9 @@ def _mask(segmentation, width, height, scale):
     return np.where(prob > 0.5, 255, 0).astype(np.uint8)
 
 
-def _detect_camera(cam, out_dir, args, stream):
+def _detect_camera(cam, out_dir, args, stream, boxes=None):
+    """Detects one camera into ``out_dir``; with ``boxes`` (frame → box, ``--roi``) only
+    inside the boxes."""
     import cv2
 
     os.makedirs(out_dir)
@@ -553,6 +749,9 @@ def _detect_camera(cam, out_dir, args, stream):
         "found_right_hand": 0,
         "found_face": 0,
     }
+    if boxes is not None:
+        entry.update(roi=os.path.abspath(args.roi), roi_frames=0, roi_canvas=None)
+    crops = canvas = None  # with --roi: frame → crop, and the canvas size (at the first frame)
     progress = _Progress(cam.name, _expected(cam, args.start, args.every, args.frames), stream)
     holistic = _holistic(args.masks)
     try:
@@ -566,25 +765,45 @@ def _detect_camera(cam, out_dir, args, stream):
                     f"{where}: {width}×{height}, the camera's first frame is "
                     f"{entry['width']}×{entry['height']}"
                 )
-            rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-            rgb.flags.writeable = False
-            try:
-                res = holistic.process(rgb)
-            except Exception as e:  # mediapipe's RuntimeError / ValueError
-                raise DetectError(f"{cam.source} frame {n}: mediapipe failed: {e}") from e
+            if boxes is None:
+                rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+                crop = None
+            else:
+                if crops is None:
+                    crops = {k: roi_crop(b, width, height) for k, b in boxes.items()}
+                    canvas = roi_canvas(crops.values())
+                    entry["roi_canvas"] = list(canvas) if canvas else None
+                crop = crops.get(n)
+                rgb = None if crop is None else _roi_canvas_image(image, crop, canvas)
+            if rgb is None:  # --roi, no box: nothing detected, Holistic not run
+                res = segmentation = None
+            else:
+                rgb.flags.writeable = False
+                try:
+                    res = holistic.process(rgb)
+                except Exception as e:  # mediapipe's RuntimeError / ValueError
+                    raise DetectError(f"{cam.source} frame {n}: mediapipe failed: {e}") from e
+                segmentation = res.segmentation_mask if args.masks else None
+                if crop is not None:
+                    entry["roi_frames"] += 1
+                    res = roi_results(res, crop, canvas, width, height)
+                    if args.masks:
+                        segmentation = _roi_segmentation(segmentation, crop, canvas, width,
+                                                         height)
             stem = os.path.join(out_dir, f"{cam.name}_{n:012d}")
-            doc = {"version": 1.3, "people": person(res, width, height)}
+            doc = {"version": 1.3, "people": [] if res is None else person(res, width, height)}
             with open(stem + "_keypoints.json", "w") as f:
                 json.dump(doc, f, separators=(",", ":"))
             if args.masks:
-                mask = _mask(res.segmentation_mask, width, height, args.mask_scale)
+                mask = _mask(segmentation, width, height, args.mask_scale)
                 if not cv2.imwrite(stem + "_mask.png", mask):
                     raise DetectError(f"{stem}_mask.png: cannot write")
             entry["frames"] += 1
-            entry["found_body"] += res.pose_landmarks is not None
-            entry["found_left_hand"] += res.left_hand_landmarks is not None
-            entry["found_right_hand"] += res.right_hand_landmarks is not None
-            entry["found_face"] += res.face_landmarks is not None
+            if res is not None:
+                entry["found_body"] += res.pose_landmarks is not None
+                entry["found_left_hand"] += res.left_hand_landmarks is not None
+                entry["found_right_hand"] += res.right_hand_landmarks is not None
+                entry["found_face"] += res.face_landmarks is not None
             progress.update()
     finally:
         holistic.close()
@@ -611,7 +830,19 @@ def detect(args):
             f"{out}: exists and is not an earlier detector output (no detections.json); "
             "not replacing it"
         )
-    cams = _find_cameras(args.videos, args.cameras)
+    roi = None
+    if args.roi is not None:
+        roi_path = os.path.abspath(args.roi)
+        roi = _load_roi(roi_path)
+        if args.cameras:
+            missing = [n for n in args.cameras if n not in roi]
+            if missing:
+                raise DetectError(
+                    f"{roi_path}: no camera {', '.join(missing)} (listed: {', '.join(roi)})"
+                )
+        cams = _find_cameras(args.videos, args.cameras or sorted(roi))
+    else:
+        cams = _find_cameras(args.videos, args.cameras)
     for cam in cams:
         _probe(cam)
         if _expected(cam, args.start, args.every, args.frames) == 0:
@@ -635,7 +866,8 @@ def detect(args):
         t0 = time.perf_counter()
         with _QuietStderr() as quiet:
             entries = [
-                _detect_camera(cam, os.path.join(tmp, cam.name), args, quiet.stream)
+                _detect_camera(cam, os.path.join(tmp, cam.name), args, quiet.stream,
+                               None if roi is None else roi[cam.name])
                 for cam in cams
             ]
         seconds = time.perf_counter() - t0
@@ -1004,7 +1236,8 @@ def parser():
         "Overlay mode, --overlay DIR --videos DIR [--video-scale 0.5]: composites the "
         "mesh silhouettes (blue) and keypoints (detections green, model red) listed in "
         "DIR/overlays.json over the videos' frames into DIR/<cam>/video_<index>.png and "
-        "DIR/<cam>.mp4 (mp4v); no detection.",
+        "DIR/<cam>.mp4 (mp4v); no detection. --roi FILE: detect only inside per-frame "
+        "boxes (a bystander in view).",
     )
     p.add_argument("--videos", required=True, metavar="DIR",
                    help="one video per camera (*.mp4, *.avi, *.mov; also *.mkv with --overlay; "
@@ -1024,6 +1257,11 @@ def parser():
     p.add_argument("--cameras", metavar="LIST",
                    type=lambda s: [c for c in (x.strip() for x in s.split(",")) if c],
                    help="comma-separated camera names (default: all)")
+    p.add_argument("--roi", metavar="FILE",
+                   help="detect only inside per-frame boxes: FILE (JSON) {\"cameras\": "
+                   "{\"cam03\": {\"boxes\": {\"<frame>\": [x0, y0, x1, y1], ...}}}} in "
+                   "full-image pixels; only its cameras are detected, each box enlarged by "
+                   "25 %% per side; frames without a box: nobody found")
     p.add_argument("--overlay", metavar="DIR",
                    help="overlay mode: composite DIR/overlays.json's silhouettes and keypoints "
                    "over the videos (DIR/<cam>/video_NNNN.png, DIR/<cam>.mp4) instead of "
@@ -1043,6 +1281,7 @@ def main(argv=None):
                 ("--out", args.out is not None), ("--frames", args.frames is not None),
                 ("--start", args.start != 0), ("--every", args.every != 1),
                 ("--masks", args.masks), ("--mask-scale", args.mask_scale != 0.25),
+                ("--roi", args.roi is not None),
             ) if on
         ]
         if given:
