@@ -600,6 +600,44 @@ mod tests {
     }
 
     #[test]
+    fn a_camera_that_follows_another_person_disagrees_and_gets_the_others_boxes() {
+        let cams = rig();
+        let mut det = detections(&cams, &[0, 0, 0, 0], 12);
+        // Camera 3 sees someone 1 m to the side.
+        for f in 0..12 {
+            let mut kp = Keypoints2d::new();
+            for (k, x) in scene(f).into_iter().enumerate() {
+                kp.insert(k, (cams[3].project([x[0] + 1.0, x[1], x[2]]).unwrap(), 0.9));
+            }
+            det.views[3][f] = kp;
+        }
+        let offsets = [0, 0, 0, 0];
+        let tri = triangulate_sequence(&cams, &det, &offsets, &[], &TriangulateOptions::default())
+            .unwrap();
+        let g: Vec<f64> = (0..4)
+            .map(|c| camera_agreement(&tri, &det, &offsets, c))
+            .collect();
+        assert_eq!(g, vec![1.0, 1.0, 1.0, 0.0]);
+        // The others' person projected into camera 3: the box holds the true person's points.
+        let others =
+            triangulate_sequence(&cams, &det, &offsets, &[3], &TriangulateOptions::default())
+                .unwrap();
+        let boxes = person_boxes(&cams[3], &others, 0, 0);
+        assert_eq!(boxes.len(), 12);
+        for (f, b) in &boxes {
+            for x in scene(*f) {
+                let p = cams[3].project(x).unwrap();
+                assert!(
+                    p[0] >= b[0] - 1e-6
+                        && p[0] <= b[2] + 1e-6
+                        && p[1] >= b[1] - 1e-6
+                        && p[1] <= b[3] + 1e-6
+                );
+            }
+        }
+    }
+
+    #[test]
     fn smoothing_keeps_a_line_and_damps_alternating_noise() {
         let mk = |x: f64| {
             let mut f = TriangulatedFrame {
