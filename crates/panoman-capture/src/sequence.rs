@@ -254,7 +254,7 @@ pub fn estimate_offsets(
 }
 
 /// Median of `v` (sorted in place); NaN when empty.
-pub(crate) fn median(v: &mut [f64]) -> f64 {
+pub fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }

@@ -177,34 +177,42 @@ fn names(cameras: &[Camera]) -> String {
         .join(", ")
 }
 
-/// Runs the embedded detector on `videos` into `out` (the detector writes atomically).
-fn run_detector(a: &CaptureArgs, videos: &Path, out: &Path) -> Result<()> {
+/// Runs the embedded detector script with `args` in the detector's Python (the script is
+/// written to `OUT/.detect.py` for the run and removed after it).
+fn run_script(a: &CaptureArgs, args: &[&std::ffi::OsStr]) -> Result<std::process::ExitStatus> {
     let py = detector_python(a);
     let script = a.out.join(".detect.py");
     crate::util::write_atomic(&script, DETECT_PY.as_bytes())?;
     let status = std::process::Command::new(&py)
         .arg(&script)
-        .arg("--videos")
-        .arg(videos)
-        .arg("--out")
-        .arg(out)
-        .arg("--masks")
-        .status()
-        .map_err(|e| {
-            anyhow!(
-                "cannot run {} ({e}): the detector needs Python with mediapipe==0.10.14 \
-                 (scripts/detect-setup.sh, then --python target/detect/bin/python)",
-                py.display()
-            )
-        });
+        .args(args)
+        .status();
     let _ = std::fs::remove_file(&script);
-    let status = status?;
+    status.map_err(|e| {
+        anyhow!(
+            "cannot run {} ({e}): the detector needs Python with mediapipe==0.10.14 \
+             (scripts/detect-setup.sh, then --python target/detect/bin/python)",
+            py.display()
+        )
+    })
+}
+
+/// Runs the embedded detector on `videos` into `out` (the detector writes atomically).
+fn run_detector(a: &CaptureArgs, videos: &Path, out: &Path) -> Result<()> {
+    let status = run_script(
+        a,
+        &[
+            "--videos".as_ref(),
+            videos.as_os_str(),
+            "--out".as_ref(),
+            out.as_os_str(),
+            "--masks".as_ref(),
+        ],
+    )?;
     if !status.success() {
         bail!(
-            "{}: the detector ({} {}) failed ({status}); its message is above",
-            videos.display(),
-            py.display(),
-            script.display()
+            "{}: the detector failed ({status}); its message is above",
+            videos.display()
         );
     }
     Ok(())
@@ -300,27 +308,26 @@ fn redetect_camera(
     write_json(&roi, &json!({"cameras": {name.as_str(): {"boxes": all}}}))?;
     let tmp = a.out.join(format!(".detections-{name}"));
     let _ = std::fs::remove_dir_all(&tmp);
-    let py = detector_python(a);
-    let script = a.out.join(".detect.py");
-    crate::util::write_atomic(&script, DETECT_PY.as_bytes())?;
-    let status = std::process::Command::new(&py)
-        .arg(&script)
-        .arg("--videos")
-        .arg(videos)
-        .arg("--out")
-        .arg(&tmp)
-        .arg("--masks")
-        .arg("--roi")
-        .arg(&roi)
-        .arg("--cameras")
-        .arg(name)
-        .status();
-    let _ = std::fs::remove_file(&script);
+    let status = run_script(
+        a,
+        &[
+            "--videos".as_ref(),
+            videos.as_os_str(),
+            "--out".as_ref(),
+            tmp.as_os_str(),
+            "--masks".as_ref(),
+            "--roi".as_ref(),
+            roi.as_os_str(),
+            "--cameras".as_ref(),
+            name.as_ref(),
+        ],
+    );
     let _ = std::fs::remove_file(&roi);
-    let status = status.map_err(|e| anyhow!("cannot run {} ({e})", py.display()))?;
-    if !status.success() {
+    if !status?.success() {
         let _ = std::fs::remove_dir_all(&tmp);
-        bail!("camera {name}: detecting again inside the person's boxes failed ({status})");
+        bail!(
+            "camera {name}: detecting again inside the person's boxes failed; its message is above"
+        );
     }
     let old = det_dir.join(name);
     let aside = a.out.join(format!(".detections-{name}-first"));
@@ -602,18 +609,10 @@ pub fn run(a: CaptureArgs) -> Result<()> {
     Ok(())
 }
 
+/// Median of the finite values of `v` (NaN when none).
 fn median_of(v: &[f64]) -> f64 {
     let mut f: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    if f.is_empty() {
-        return f64::NAN;
-    }
-    f.sort_by(f64::total_cmp);
-    let n = f.len();
-    if n % 2 == 1 {
-        f[n / 2]
-    } else {
-        0.5 * (f[n / 2 - 1] + f[n / 2])
-    }
+    panoman_capture::sequence::median(&mut f)
 }
 
 fn print_summary(s: &serde_json::Value) {
@@ -784,18 +783,15 @@ fn write_overlays(
 /// Composites the overlays over the videos with the detector script's `--overlay` mode
 /// (`<camera>/video_NNNN.png` and `<camera>.mp4`).
 fn composite_overlays(a: &CaptureArgs, videos: &Path, dir: &Path) -> Result<()> {
-    let py = detector_python(a);
-    let script = a.out.join(".detect.py");
-    crate::util::write_atomic(&script, DETECT_PY.as_bytes())?;
-    let status = std::process::Command::new(&py)
-        .arg(&script)
-        .arg("--overlay")
-        .arg(dir)
-        .arg("--videos")
-        .arg(videos)
-        .status();
-    let _ = std::fs::remove_file(&script);
-    let status = status.map_err(|e| anyhow!("cannot run {} ({e})", py.display()))?;
+    let status = run_script(
+        a,
+        &[
+            "--overlay".as_ref(),
+            dir.as_os_str(),
+            "--videos".as_ref(),
+            videos.as_os_str(),
+        ],
+    )?;
     if !status.success() {
         bail!(
             "{}: compositing the overlays over the videos failed ({status}); its message is above",

@@ -541,15 +541,20 @@ def _find_cameras(videos_dir, only, extensions=VIDEO_EXTENSIONS):
     return list(cams.values())
 
 
-def _load_roi(path):
-    """The boxes of a ``--roi`` file, checked: ``{camera: {frame: (x0, y0, x1, y1)}}``."""
+def _read_json(path):
+    """A JSON file's document; one :class:`DetectError` naming the file otherwise."""
     if not os.path.isfile(path):
         raise DetectError(f"{path}: no such file")
     try:
         with open(path, encoding="utf-8") as f:
-            doc = json.load(f)
+            return json.load(f)
     except (OSError, ValueError) as e:
         raise DetectError(f"{path}: cannot read ({e})") from e
+
+
+def _load_roi(path):
+    """The boxes of a ``--roi`` file, checked: ``{camera: {frame: (x0, y0, x1, y1)}}``."""
+    doc = _read_json(path)
 
     def bad(what):
         return DetectError(f"{path}: {what}")
@@ -916,13 +921,7 @@ def _number(value):
 def _load_overlays(overlay_dir, only):
     """The cameras of ``overlay_dir/overlays.json`` (checked), restricted to ``only``."""
     path = os.path.join(overlay_dir, "overlays.json")
-    if not os.path.isfile(path):
-        raise DetectError(f"{path}: no such file")
-    try:
-        with open(path, encoding="utf-8") as f:
-            doc = json.load(f)
-    except (OSError, ValueError) as e:
-        raise DetectError(f"{path}: cannot read ({e})") from e
+    doc = _read_json(path)
 
     def bad(what):
         return DetectError(f"{path}: {what}")
