@@ -594,6 +594,7 @@ pub fn run(a: CaptureArgs) -> Result<()> {
             "held_frames": tracked.held,
             "not_converged_frames": tracked.not_converged,
             "body_residual_mm_median": median_of(&tracked.residual_mm),
+            "keypoint_residual_mm_median": keypoint_residuals(&model, &tri, &tracked),
         },
         "jitter_m_per_s2": {
             "panoman_vertices": mean_acceleration(&vertex_tracks(&tracked), fps),
@@ -607,6 +608,30 @@ pub fn run(a: CaptureArgs) -> Result<()> {
     write_json(&a.out.join("summary.json"), &summary)?;
     print_summary(&summary);
     Ok(())
+}
+
+/// Per body and foot keypoint, the median distance (mm) between the tracked mesh's keypoint
+/// and its target (the smoothed triangulation), over the frames where it was a target.
+fn keypoint_residuals(
+    model: &Model,
+    tri: &[TriangulatedFrame],
+    tracked: &Tracked,
+) -> BTreeMap<String, f64> {
+    let mut per: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
+    for (f, t) in tri.iter().enumerate() {
+        for (&k, &p) in t.keypoints.points.range(..21) {
+            if let Some(q) = tracked.keypoints.get(f).and_then(|v| v.get(k)) {
+                let d = panoman_mesh::geom::norm(panoman_mesh::geom::sub(p, *q));
+                per.entry(k).or_default().push(1e3 * d);
+            }
+        }
+    }
+    per.into_iter()
+        .map(|(k, v)| {
+            let name = model.keypoint_names().get(k).cloned().unwrap_or(k.to_string());
+            (name, median_of(&v))
+        })
+        .collect()
 }
 
 /// Median of the finite values of `v` (NaN when none).
