@@ -551,6 +551,9 @@ pub fn run(a: CaptureArgs) -> Result<()> {
             sigma,
         )?);
     }
+    if !held_out.is_empty() {
+        plot_held_out(&a.out.join("held_out.png"), &held_out)?;
+    }
     let n = tri.len() as f64;
     let stats: BTreeMap<String, serde_json::Value> = triangulation_stats(&raw)
         .into_iter()
@@ -628,7 +631,11 @@ fn keypoint_residuals(
     }
     per.into_iter()
         .map(|(k, v)| {
-            let name = model.keypoint_names().get(k).cloned().unwrap_or(k.to_string());
+            let name = model
+                .keypoint_names()
+                .get(k)
+                .cloned()
+                .unwrap_or(k.to_string());
             (name, median_of(&v))
         })
         .collect()
@@ -763,38 +770,12 @@ fn write_overlays(
             if every == 0 || t % every != 0 {
                 continue;
             }
-            let mut img = RgbImage::new(grid.width as u32, grid.height as u32, [20, 20, 20]);
-            for i in 0..grid.data.len() {
-                let col = match (grid.data[i], sil.data[i]) {
-                    (true, true) => [150, 110, 200],
-                    (true, false) => [130, 130, 130],
-                    (false, true) => [60, 90, 220],
-                    _ => continue,
-                };
-                img.data[3 * i..3 * i + 3].copy_from_slice(&col);
-            }
-            let mut dot = |p: [f64; 2], col: [u8; 3]| {
-                let (x, y) = (p[0] * scale, p[1] * scale);
-                for dy in -2i64..=2 {
-                    for dx in -2i64..=2 {
-                        let (xx, yy) = (x as i64 + dx, y as i64 + dy);
-                        if xx >= 0
-                            && yy >= 0
-                            && (xx as usize) < grid.width
-                            && (yy as usize) < grid.height
-                        {
-                            let i = 3 * (yy as usize * grid.width + xx as usize);
-                            img.data[i..i + 3].copy_from_slice(&col);
-                        }
-                    }
-                }
-            };
-            for &u in &detected {
-                dot(u, [40, 220, 60]);
-            }
-            for &p in projected.iter().take(21) {
-                dot(p, [230, 40, 40]);
-            }
+            let dots: Vec<([f64; 2], [u8; 3])> = detected
+                .iter()
+                .map(|&u| (u, [40, 220, 60]))
+                .chain(projected.iter().take(21).map(|&p| (p, [230, 40, 40])))
+                .collect();
+            let img = draw_overlay(&grid, &sil, &dots);
             img.save_png(&d.join(format!("frame_{t:04}.png")))?;
         }
         cams_json.push(json!({"name": cam.name, "frames": frames_json}));
@@ -803,6 +784,66 @@ fn write_overlays(
         &dir.join("overlays.json"),
         &json!({"scale": scale, "fps": fps, "cameras": cams_json}),
     )
+}
+
+/// Per held-out camera, the per-frame median body-keypoint error (pixels) of PanoMan, LBS and
+/// the other cameras' triangulation.
+fn plot_held_out(path: &Path, rows: &[HeldOut]) -> Result<()> {
+    let panels: Vec<(String, String, Vec<crate::plot::Series>)> = rows
+        .iter()
+        .map(|r| {
+            let series = ["panoman", "lbs", "triangulation"]
+                .iter()
+                .filter_map(|m| {
+                    let e = r.keypoint_error.get(*m)?;
+                    Some(crate::plot::Series {
+                        name: (*m).to_string(),
+                        points: e
+                            .per_frame_px
+                            .iter()
+                            .enumerate()
+                            .filter(|(_, v)| v.is_finite())
+                            .map(|(f, &v)| (f as f64, v))
+                            .collect(),
+                    })
+                })
+                .collect();
+            (
+                format!("held out: {}", r.camera),
+                "body keypoint error (px)".to_string(),
+                series,
+            )
+        })
+        .collect();
+    crate::plot::line_panels(path, &panels, "frame", false)
+}
+
+/// A picture on the mask grid: person mask grey, mesh silhouette blue (purple where both),
+/// `dots` (full-resolution pixels, colour) as 5×5 squares.
+fn draw_overlay(grid: &Mask, sil: &Mask, dots: &[([f64; 2], [u8; 3])]) -> RgbImage {
+    let mut img = RgbImage::new(grid.width as u32, grid.height as u32, [20, 20, 20]);
+    for i in 0..grid.data.len() {
+        let col = match (grid.data[i], sil.data[i]) {
+            (true, true) => [150, 110, 200],
+            (true, false) => [130, 130, 130],
+            (false, true) => [60, 90, 220],
+            _ => continue,
+        };
+        img.data[3 * i..3 * i + 3].copy_from_slice(&col);
+    }
+    for &(p, col) in dots {
+        let (x, y) = (p[0] * grid.scale, p[1] * grid.scale);
+        for dy in -2i64..=2 {
+            for dx in -2i64..=2 {
+                let (xx, yy) = (x as i64 + dx, y as i64 + dy);
+                if xx >= 0 && yy >= 0 && (xx as usize) < grid.width && (yy as usize) < grid.height {
+                    let i = 3 * (yy as usize * grid.width + xx as usize);
+                    img.data[i..i + 3].copy_from_slice(&col);
+                }
+            }
+        }
+    }
+    img
 }
 
 /// Composites the overlays over the videos with the detector script's `--overlay` mode
@@ -944,6 +985,45 @@ fn evaluate_held_out(
         );
     }
     let masks = read_masks(dets, h, &camera_frames[h], mask_scale)?;
+    // The worst frame (PanoMan's per-frame median body error) drawn on the mask grid: the
+    // held-out view's mask and detections (green), PanoMan's silhouette and keypoints (red),
+    // the other cameras' triangulation (yellow).
+    if let (Some(p), Some(e)) = (tracked.first(), keypoint_error.get("panoman")) {
+        let worst = e
+            .per_frame_px
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.is_finite())
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .map(|(f, _)| f);
+        if let (Some(f), Some(Some(m))) = (worst, worst.map(|f| masks.get(f).cloned().flatten())) {
+            let sil = m.silhouette(cam, &p.vertices[f], model.faces());
+            let dots: Vec<([f64; 2], [u8; 3])> = det_h[f]
+                .iter()
+                .filter(|(_, (_, c))| *c >= cfg.eval_min_confidence)
+                .map(|(_, (u, _))| (*u, [40, 220, 60]))
+                .chain(
+                    tri[f]
+                        .keypoints
+                        .points
+                        .range(..21)
+                        .filter_map(|(_, &x)| cam.project(x))
+                        .map(|u| (u, [240, 220, 40])),
+                )
+                .chain(
+                    p.keypoints[f]
+                        .iter()
+                        .take(21)
+                        .filter_map(|&x| cam.project(x))
+                        .map(|u| (u, [230, 40, 40])),
+                )
+                .collect();
+            let dir = a.out.join("held_out");
+            std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+            draw_overlay(&m, &sil, &dots)
+                .save_png(&dir.join(format!("{}_worst_frame_{f:04}.png", cam.name)))?;
+        }
+    }
     let mut silhouette_iou = BTreeMap::new();
     for t in &tracked {
         let ious: Vec<f64> = masks
