@@ -178,28 +178,73 @@ fn names(cameras: &[Camera]) -> String {
 }
 
 /// Runs the embedded detector script with `args` in the detector's Python (the script is
-/// written to `OUT/.detect.py` for the run and removed after it).
-fn run_script(a: &CaptureArgs, args: &[&std::ffi::OsStr]) -> Result<std::process::ExitStatus> {
+/// written to a temporary folder for the run). Its progress is passed to stderr as it comes;
+/// its error line (`detect: error: <file>: …`) becomes this function's one-line error (FFmpeg's
+/// own messages are silenced).
+fn run_script(a: &CaptureArgs, args: &[&std::ffi::OsStr], what: &str) -> Result<()> {
+    use std::io::{Read, Write};
     let py = detector_python(a);
-    let script = a.out.join(".detect.py");
+    let dir = std::env::temp_dir().join(format!("panoman-detect-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+    let script = dir.join("detect.py");
     crate::util::write_atomic(&script, DETECT_PY.as_bytes())?;
-    let status = std::process::Command::new(&py)
+    let child = std::process::Command::new(&py)
         .arg(&script)
         .args(args)
-        .status();
-    let _ = std::fs::remove_file(&script);
-    status.map_err(|e| {
-        anyhow!(
-            "cannot run {} ({e}): the detector needs Python with mediapipe==0.10.14 \
-             (scripts/detect-setup.sh, then --python target/detect/bin/python)",
-            py.display()
-        )
-    })
+        .env("OPENCV_FFMPEG_LOGLEVEL", "-8")
+        .env("OPENCV_LOG_LEVEL", "ERROR")
+        .stderr(std::process::Stdio::piped())
+        .spawn();
+    let mut child = match child {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&dir);
+            bail!(
+                "cannot run {} ({e}): the detector needs Python with mediapipe==0.10.14 \
+                 (scripts/detect-setup.sh, then --python target/detect/bin/python)",
+                py.display()
+            );
+        }
+    };
+    // Pass the progress through segment by segment (tqdm ends its updates with '\r'), keep
+    // the error lines.
+    let mut errors = Vec::new();
+    if let Some(mut err) = child.stderr.take() {
+        let mut seg = Vec::new();
+        let mut byte = [0u8; 1];
+        let mut out = std::io::stderr();
+        while let Ok(1) = err.read(&mut byte) {
+            seg.push(byte[0]);
+            if byte[0] == b'\n' || byte[0] == b'\r' {
+                let text = String::from_utf8_lossy(&seg).trim().to_string();
+                if text.starts_with("detect: error:") || text.contains(".py: error:") {
+                    errors.push(text);
+                } else {
+                    let _ = out.write_all(&seg);
+                }
+                seg.clear();
+            }
+        }
+        let text = String::from_utf8_lossy(&seg).trim().to_string();
+        if !text.is_empty() {
+            errors.push(text);
+        }
+    }
+    let status = child.wait();
+    let _ = std::fs::remove_dir_all(&dir);
+    let status = status.with_context(|| format!("{what}: waiting for {}", py.display()))?;
+    if !status.success() {
+        match errors.last() {
+            Some(e) => bail!("{what}: {}", e.trim_start_matches("detect: error: ")),
+            None => bail!("{what}: {} exited with {status}", py.display()),
+        }
+    }
+    Ok(())
 }
 
 /// Runs the embedded detector on `videos` into `out` (the detector writes atomically).
 fn run_detector(a: &CaptureArgs, videos: &Path, out: &Path) -> Result<()> {
-    let status = run_script(
+    run_script(
         a,
         &[
             "--videos".as_ref(),
@@ -208,14 +253,8 @@ fn run_detector(a: &CaptureArgs, videos: &Path, out: &Path) -> Result<()> {
             out.as_os_str(),
             "--masks".as_ref(),
         ],
-    )?;
-    if !status.success() {
-        bail!(
-            "{}: the detector failed ({status}); its message is above",
-            videos.display()
-        );
-    }
-    Ok(())
+        "detection",
+    )
 }
 
 /// `detections.json` of a detection folder, if present.
@@ -321,13 +360,12 @@ fn redetect_camera(
             "--cameras".as_ref(),
             name.as_ref(),
         ],
+        &format!("detecting camera {name} again inside the person's boxes"),
     );
     let _ = std::fs::remove_file(&roi);
-    if !status?.success() {
+    if let Err(e) = status {
         let _ = std::fs::remove_dir_all(&tmp);
-        bail!(
-            "camera {name}: detecting again inside the person's boxes failed; its message is above"
-        );
+        return Err(e);
     }
     let old = det_dir.join(name);
     let aside = a.out.join(format!(".detections-{name}-first"));
@@ -339,8 +377,19 @@ fn redetect_camera(
     Ok(())
 }
 
-/// Runs `panoman capture`.
+/// Runs `panoman capture`; on an error, an output folder this run created is removed (nothing
+/// half-written).
 pub fn run(a: CaptureArgs) -> Result<()> {
+    let created = !a.out.exists();
+    let out = a.out.clone();
+    let r = run_capture(a);
+    if r.is_err() && created {
+        let _ = std::fs::remove_dir_all(&out);
+    }
+    r
+}
+
+fn run_capture(a: CaptureArgs) -> Result<()> {
     let t_all = Instant::now();
     let cameras = read_calibration(&a.calibration)?;
     if cameras.len() < 2 {
@@ -849,7 +898,7 @@ fn draw_overlay(grid: &Mask, sil: &Mask, dots: &[([f64; 2], [u8; 3])]) -> RgbIma
 /// Composites the overlays over the videos with the detector script's `--overlay` mode
 /// (`<camera>/video_NNNN.png` and `<camera>.mp4`).
 fn composite_overlays(a: &CaptureArgs, videos: &Path, dir: &Path) -> Result<()> {
-    let status = run_script(
+    run_script(
         a,
         &[
             "--overlay".as_ref(),
@@ -857,14 +906,8 @@ fn composite_overlays(a: &CaptureArgs, videos: &Path, dir: &Path) -> Result<()> 
             "--videos".as_ref(),
             videos.as_os_str(),
         ],
-    )?;
-    if !status.success() {
-        bail!(
-            "{}: compositing the overlays over the videos failed ({status}); its message is above",
-            dir.display()
-        );
-    }
-    Ok(())
+        "overlays over the videos",
+    )
 }
 
 /// Tracks `tri` (the common frames, cameras `skip` left out) by `method`: from the
