@@ -555,7 +555,7 @@ fn run_capture(a: CaptureArgs) -> Result<()> {
     )?;
     bar.finish_and_clear();
     let fit_s = t_fit.elapsed().as_secs_f64();
-    write_outputs(&a.out, &model, &raw, &tracked)?;
+    write_outputs(&a.out, &model, &raw, &tracked, fps)?;
     let camera_frames: Vec<Vec<usize>> = (0..cameras.len())
         .map(|c| {
             range
@@ -736,12 +736,14 @@ fn print_summary(s: &serde_json::Value) {
     }
 }
 
-/// Meshes (OBJ) and the triangulated keypoints (before smoothing) per frame.
+/// Meshes (OBJ) and the triangulated keypoints (before smoothing) per frame, and the sequence
+/// as `capture.glb` (morph-target animation at `fps`, the keypoints as markers).
 fn write_outputs(
     out: &Path,
     model: &Model,
     tri: &[TriangulatedFrame],
     tracked: &Tracked,
+    fps: f64,
 ) -> Result<()> {
     let meshes = out.join("meshes");
     let kp = out.join("triangulated");
@@ -754,6 +756,19 @@ fn write_outputs(
         )?;
         t.keypoints.write(&kp.join(format!("frame_{f:04}.json")))?;
     }
+    // The tracked sequence as one animated glTF with the triangulated keypoints as markers.
+    let markers: Vec<_> = tri.iter().map(|t| t.keypoints.clone()).collect();
+    let options = panoman_interchange::glb::GlbOptions {
+        fps,
+        ..Default::default()
+    };
+    let glb = panoman_interchange::glb::export_glb(
+        model.faces(),
+        &tracked.vertices,
+        Some(&panoman_interchange::glb::Markers::from_keypoints(&markers)),
+        &options,
+    )?;
+    panoman_mesh::io::write_bytes_atomically(&out.join("capture.glb"), &glb)?;
     Ok(())
 }
 
