@@ -606,9 +606,14 @@ fn stress_table(st: &StressSummary, f: &dyn Fn(f64) -> String) -> String {
         if let Some(t) = &c.twist {
             let _ = write!(
                 rows,
-                "<tr><td></td><td colspan=\"9\">forearm radius ratio {} (truth {}), shoulder {} mm, hand {} mm (PanoMan / LBS)</td></tr>",
+                "<tr><td></td><td colspan=\"9\">forearm radius ratio {} (truth {}), upper arm {} (truth {}), shoulder {} mm, hand {} mm (PanoMan / LBS)</td></tr>",
                 pair(t.min_radius_ratio.panoman, t.min_radius_ratio.lbs),
                 f(t.truth_min_radius_ratio),
+                pair(
+                    t.upper_arm_min_radius_ratio.panoman,
+                    t.upper_arm_min_radius_ratio.lbs
+                ),
+                f(t.truth_upper_arm_min_radius_ratio),
                 pair(t.shoulder_mean_mm.panoman, t.shoulder_mean_mm.lbs),
                 pair(t.hand_mean_mm.panoman, t.hand_mean_mm.lbs),
             );

@@ -420,6 +420,15 @@ fn twist_measures(
             .filter(|r| r.is_finite())
             .fold(f64::INFINITY, f64::min)
     };
+    let upper = LimbSegment::new(rest, kr[rs], kr[re], 0.15, 0.85, 0.06, 7);
+    let upper_ratio = |x: &[V3]| {
+        let k = kp.evaluate(x);
+        upper
+            .radius_ratios(rest, (kr[rs], kr[re]), x, (k[rs], k[re]))
+            .into_iter()
+            .filter(|r| r.is_finite())
+            .fold(f64::INFINITY, f64::min)
+    };
     let hand = b.regions.vertices_of(Part::LeftHand);
     let shoulder: Vec<u32> = (0..rest.len() as u32)
         .filter(|&v| norm(sub(rest[v as usize], kr[rs])) < 0.12 && !hand.contains(&v))
@@ -432,6 +441,11 @@ fn twist_measures(
         min_radius_ratio: PerMethod {
             lbs: ratio(&meshes.lbs),
             panoman: ratio(&meshes.panoman),
+        },
+        truth_upper_arm_min_radius_ratio: upper_ratio(t),
+        upper_arm_min_radius_ratio: PerMethod {
+            lbs: upper_ratio(&meshes.lbs),
+            panoman: upper_ratio(&meshes.panoman),
         },
         shoulder_mean_mm: PerMethod {
             lbs: mean_over(&meshes.lbs, t, &shoulder),

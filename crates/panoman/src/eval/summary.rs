@@ -165,6 +165,13 @@ pub struct StressTwist {
     pub truth_min_radius_ratio: f64,
     /// Smallest slice radius ratio of the fit over the person's true rest.
     pub min_radius_ratio: PerMethod<f64>,
+    /// The upper arm's (shoulder to elbow, 15–85 %) smallest slice radius ratio over the
+    /// true rest: the ground truth's (skinned: an upper-arm roll collapses it too).
+    #[serde(default, deserialize_with = "nan_if_null")]
+    pub truth_upper_arm_min_radius_ratio: f64,
+    /// The same for the fits.
+    #[serde(default)]
+    pub upper_arm_min_radius_ratio: PerMethod<f64>,
     /// Mean error over the shoulder region (vertices within 12 cm of the shoulder joint at
     /// rest, hand excluded; mm).
     pub shoulder_mean_mm: PerMethod<f64>,
