@@ -46,7 +46,17 @@ pub struct CaptureConfig {
     /// TC-133 keypoints left out of the fit's targets (e.g. points a detector synthesizes
     /// rather than detects); they are still triangulated and scored.
     pub ignore: Vec<usize>,
+    /// Keypoints the detector does not detect but forms as the midpoint of two others
+    /// (`(k, a, b)`: MediaPipe's neck is its shoulders' midpoint): `k` is left out of the fit's
+    /// targets, and the tracked keypoint `k` is the midpoint of the model's `a` and `b`, so
+    /// that it means what the detections mean ([`MEDIAPIPE_MIDPOINTS`]).
+    pub midpoints: Vec<(usize, usize, usize)>,
 }
+
+/// The keypoints MediaPipe's OpenPose output forms as midpoints (TC-133 indices): the neck
+/// (0) between the shoulders (3, 9). Its mid-hip is also a midpoint of its hips, but the
+/// model's pelvis point sits within millimetres of its hips' midpoint, so it stays a target.
+pub const MEDIAPIPE_MIDPOINTS: [(usize, usize, usize); 1] = [(0, 3, 9)];
 
 impl Default for CaptureConfig {
     fn default() -> Self {
@@ -57,6 +67,7 @@ impl Default for CaptureConfig {
             min_body_keypoints: 8,
             keypoint_sigma: 0.015,
             ignore: Vec::new(),
+            midpoints: Vec::new(),
         }
     }
 }
@@ -68,7 +79,8 @@ pub struct Tracked {
     pub method: Method,
     /// Per frame, the mesh (the model's topology, metres).
     pub vertices: Vec<Vec<V3>>,
-    /// Per frame, the mesh's TC-133 keypoints (metres).
+    /// Per frame, the mesh's TC-133 keypoints (metres), the detector's midpoints
+    /// ([`CaptureConfig::midpoints`]) formed as it forms them.
     pub keypoints: Vec<Vec<V3>>,
     /// Frames that held the previous fit (too few keypoints triangulated).
     pub held: Vec<usize>,
@@ -82,10 +94,15 @@ pub struct Tracked {
     pub frame_seconds: Vec<f64>,
 }
 
-/// The fit targets of a triangulated frame: its keypoints but those of `config.ignore`.
+/// The fit targets of a triangulated frame: its keypoints but those of `config.ignore` and
+/// the detector's midpoints.
 fn targets_of(frame: &TriangulatedFrame, config: &CaptureConfig) -> Targets {
     let mut keypoints = frame.keypoints.clone();
-    for k in &config.ignore {
+    for k in config
+        .ignore
+        .iter()
+        .chain(config.midpoints.iter().map(|m| &m.0))
+    {
         keypoints.points.remove(k);
         keypoints.weights.remove(k);
     }
@@ -176,7 +193,18 @@ pub fn track(
                 .get("body")
                 .map_or(f64::NAN, |g| g.mean_mm),
         );
-        let kp = model.keypoints(&fit.vertices).map_err(|e| fit_err(f, e))?;
+        let mut kp = model.keypoints(&fit.vertices).map_err(|e| fit_err(f, e))?;
+        for &(k, a, b) in &config.midpoints {
+            if let (Some(&pa), Some(&pb)) = (kp.get(a), kp.get(b)) {
+                if let Some(p) = kp.get_mut(k) {
+                    *p = [
+                        0.5 * (pa[0] + pb[0]),
+                        0.5 * (pa[1] + pb[1]),
+                        0.5 * (pa[2] + pb[2]),
+                    ];
+                }
+            }
+        }
         out.vertices.push(fit.vertices);
         out.keypoints.push(kp);
         progress(f + 1);
@@ -494,6 +522,9 @@ pub struct HeldOut {
     /// Mean acceleration (m/s²): `panoman_vertices`, `panoman_keypoints`, `lbs_vertices`,
     /// `lbs_keypoints`, `triangulation_keypoints`.
     pub jitter: BTreeMap<String, f64>,
+    /// Per method, per body and foot keypoint name, the median 3D distance (mm) between the
+    /// tracked keypoint and its target (the other cameras' smoothed triangulation).
+    pub fit_residual_mm: BTreeMap<String, BTreeMap<String, f64>>,
 }
 
 /// The triangulated keypoints as point tracks (TC-133 0–20) and a tracked sequence's

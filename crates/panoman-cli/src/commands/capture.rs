@@ -516,6 +516,15 @@ fn run_capture(a: CaptureArgs) -> Result<()> {
     let cfg = CaptureConfig {
         calibrate_shape: a.calibrate_shape,
         keypoint_sigma: a.keypoint_sigma,
+        midpoints: if info
+            .as_ref()
+            .and_then(|i| i["detector"].as_str())
+            .is_some_and(|d| d.starts_with("mediapipe"))
+        {
+            panoman_capture::capture::MEDIAPIPE_MIDPOINTS.to_vec()
+        } else {
+            Vec::new()
+        },
         ignore: a
             .ignore
             .iter()
@@ -1117,7 +1126,17 @@ fn evaluate_held_out(
             mean_acceleration(&keypoint_tracks(&tri, None), cfg.fps),
         );
     }
+    let fit_residual_mm = tracked
+        .iter()
+        .map(|t| {
+            (
+                name(t.method).to_string(),
+                keypoint_residuals(model, &tri, t),
+            )
+        })
+        .collect();
     Ok(HeldOut {
+        fit_residual_mm,
         camera: cam.name.clone(),
         frames: tri.len(),
         keypoint_error,
