@@ -195,14 +195,12 @@ pub fn track(
         );
         let mut kp = model.keypoints(&fit.vertices).map_err(|e| fit_err(f, e))?;
         for &(k, a, b) in &config.midpoints {
-            if let (Some(&pa), Some(&pb)) = (kp.get(a), kp.get(b)) {
-                if let Some(p) = kp.get_mut(k) {
-                    *p = [
-                        0.5 * (pa[0] + pb[0]),
-                        0.5 * (pa[1] + pb[1]),
-                        0.5 * (pa[2] + pb[2]),
-                    ];
-                }
+            if let (Some(&pa), Some(&pb), true) = (kp.get(a), kp.get(b), k < kp.len()) {
+                kp[k] = [
+                    0.5 * (pa[0] + pb[0]),
+                    0.5 * (pa[1] + pb[1]),
+                    0.5 * (pa[2] + pb[2]),
+                ];
             }
         }
         out.vertices.push(fit.vertices);
