@@ -156,10 +156,16 @@ fn the_real_excerpt_synchronizes_triangulates_and_scores_a_held_out_view() {
     let model = model();
     let cfg = CaptureConfig {
         calibrate_shape: 2,
+        midpoints: panoman_capture::capture::MEDIAPIPE_MIDPOINTS.to_vec(),
         ..Default::default()
     };
     let tracked = track(&model, &tri, Method::PanoMan, &cfg, &|_| {}).unwrap();
     assert_eq!(tracked.vertices.len(), tri.len());
+    // MediaPipe's neck is its shoulders' midpoint: so is the tracked one.
+    for k in &tracked.keypoints {
+        let mid = [0, 1, 2].map(|j| 0.5 * (k[3][j] + k[9][j]));
+        assert!(norm(sub(k[0], mid)) < 1e-12);
+    }
     let det_h: Vec<_> = range
         .clone()
         .map(|t| det.views[held][(t as i64 + offsets[held]) as usize].clone())
