@@ -82,6 +82,9 @@ pub struct Tracked {
     /// Per frame, the mesh's TC-133 keypoints (metres), the detector's midpoints
     /// ([`CaptureConfig::midpoints`]) formed as it forms them.
     pub keypoints: Vec<Vec<V3>>,
+    /// Per frame, the keypoints the fit followed (TC-133, metres): the triangulated ones, or
+    /// after the 2D refit ([`track_2d`]) the reprojection targets.
+    pub targets: Vec<KeypointsFile>,
     /// Frames that held the previous fit (too few keypoints triangulated).
     pub held: Vec<usize>,
     /// Frames whose fit did not pass the quality check.
@@ -163,6 +166,7 @@ pub fn track(
         method,
         vertices: Vec::with_capacity(frames.len()),
         keypoints: Vec::with_capacity(frames.len()),
+        targets: frames.iter().map(|f| f.keypoints.clone()).collect(),
         held: Vec::new(),
         not_converged: Vec::new(),
         residual_mm: Vec::new(),
@@ -512,7 +516,8 @@ pub struct HeldOut {
     pub camera: String,
     /// Frames scored.
     pub frames: usize,
-    /// 2D keypoint errors by method: `panoman`, `lbs`, `triangulation`.
+    /// 2D keypoint errors by method: `panoman`, `lbs`, `triangulation`, `triangulation_smoothed`,
+    /// and `panoman_targets`, `lbs_targets` (the keypoints each fit followed).
     pub keypoint_error: BTreeMap<String, ViewErrors>,
     /// Median over frames of the silhouette IoU by method (`panoman`, `lbs`), where masks
     /// exist.

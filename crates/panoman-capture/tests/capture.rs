@@ -161,6 +161,11 @@ fn the_real_excerpt_synchronizes_triangulates_and_scores_a_held_out_view() {
     };
     let tracked = track(&model, &tri, Method::PanoMan, &cfg, &|_| {}).unwrap();
     assert_eq!(tracked.vertices.len(), tri.len());
+    // The targets recorded are the frames the fit followed.
+    assert_eq!(tracked.targets.len(), tri.len());
+    for (t, f) in tracked.targets.iter().zip(&tri) {
+        assert_eq!(t, &f.keypoints);
+    }
     // MediaPipe's neck is its shoulders' midpoint: so is the tracked one.
     for k in &tracked.keypoints {
         let mid = [0, 1, 2].map(|j| 0.5 * (k[3][j] + k[9][j]));

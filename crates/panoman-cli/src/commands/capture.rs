@@ -1038,6 +1038,13 @@ fn evaluate_held_out(
             view_errors(cam, &det_h, &tri, &pred, cfg.eval_min_confidence),
         );
     }
+    for t in &tracked {
+        let pred = |f: usize, k: usize| t.targets.get(f)?.points.get(&k).copied();
+        keypoint_error.insert(
+            format!("{}_targets", name(t.method)),
+            view_errors(cam, &det_h, &tri, &pred, cfg.eval_min_confidence),
+        );
+    }
     let raw_pred = |f: usize, k: usize| -> Option<V3> { raw[f].keypoints.points.get(&k).copied() };
     keypoint_error.insert(
         "triangulation".into(),
