@@ -15,7 +15,7 @@
 //! (the OpenCV/EasyMocap YAML reader without a size argument).
 
 use crate::error::{CaptureError, Result};
-use panoman_mesh::geom::{M3, V3, add, cross, det, dot, matvec, matvec_t, norm, scale, transpose};
+use panoman_mesh::geom::{M3, V3, add, cross, det, matvec, matvec_t, norm, scale, transpose};
 
 /// Tolerance of [`Camera::validate`] on `RᵀR = I` (per entry) and `det R = 1`.
 pub const ROTATION_TOLERANCE: f64 = 1e-6;
@@ -358,61 +358,6 @@ pub(crate) fn rotation_error(r: &M3) -> std::result::Result<(), String> {
         return Err(format!("rotation has det {d} (want 1)"));
     }
     Ok(())
-}
-
-/// Rotation matrix of a Rodrigues (axis · angle, radians) vector:
-/// `R = I + sinθ/θ [v]ₓ + (1 − cosθ)/θ² [v]ₓ²`.
-pub fn rodrigues_to_matrix(v: V3) -> M3 {
-    let th2 = dot(v, v);
-    let th = th2.sqrt();
-    // a = sinθ/θ, b = (1 − cosθ)/θ², with series near 0.
-    let (a, b) = if th < 1e-4 {
-        (1.0 - th2 / 6.0, 0.5 - th2 / 24.0)
-    } else {
-        (th.sin() / th, (1.0 - th.cos()) / th2)
-    };
-    let k = [[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]];
-    let k2 = panoman_mesh::geom::matmul(&k, &k);
-    let mut r = panoman_mesh::geom::IDENTITY;
-    for i in 0..3 {
-        for j in 0..3 {
-            r[i][j] += a * k[i][j] + b * k2[i][j];
-        }
-    }
-    r
-}
-
-/// Rodrigues vector (axis · angle, angle in `[0, π]`, radians) of a rotation matrix.
-/// Accurate near 0 and near π (where the axis comes from the symmetric part).
-pub fn matrix_to_rodrigues(r: &M3) -> V3 {
-    // vee(R − Rᵀ) = 2 sinθ · n
-    let w = [r[2][1] - r[1][2], r[0][2] - r[2][0], r[1][0] - r[0][1]];
-    let cos = ((r[0][0] + r[1][1] + r[2][2] - 1.0) * 0.5).clamp(-1.0, 1.0);
-    let sin = 0.5 * norm(w);
-    let th = sin.atan2(cos);
-    if th < 1e-4 {
-        // θ/(2 sinθ) ≈ 1/2 + θ²/12
-        return scale(w, 0.5 + th * th / 12.0);
-    }
-    if th < std::f64::consts::FRAC_PI_2 {
-        return scale(w, th / (2.0 * sin));
-    }
-    // Near π: (R + Rᵀ)/2 − cosθ·I = (1 − cosθ)·n nᵀ.
-    let mut b = [[0.0; 3]; 3];
-    for i in 0..3 {
-        for j in 0..3 {
-            b[i][j] = 0.5 * (r[i][j] + r[j][i]) - if i == j { cos } else { 0.0 };
-        }
-    }
-    let i = (0..3)
-        .max_by(|&a, &c| b[a][a].total_cmp(&b[c][c]))
-        .unwrap_or(0);
-    let col = [b[0][i], b[1][i], b[2][i]];
-    let mut n = scale(col, 1.0 / norm(col));
-    if dot(n, w) < 0.0 {
-        n = scale(n, -1.0);
-    }
-    scale(n, th)
 }
 
 /// The unit vector `a × b / |a × b|` (helper for building rotations in tests and tools).

@@ -25,7 +25,7 @@ use panoman_mesh::geom::{V3, norm, sub};
 use crate::camera::Camera;
 use crate::error::{CaptureError, Result};
 use crate::frame::TriangulatedFrame;
-use crate::sequence::median;
+use panoman_mesh::stats::median;
 use rayon::prelude::*;
 
 /// Options of a capture.

@@ -18,9 +18,10 @@
 //! without it the cameras have `image_size: None` ("unknown"), which [`Camera::validate`]
 //! accepts; only this reader produces it.
 
-use crate::camera::{Camera, rodrigues_to_matrix};
+use crate::camera::Camera;
 use crate::check_unique_names;
 use crate::error::{CaptureError, Result, read_text};
+use panoman_mesh::rotation::from_rotation_vector;
 use std::path::Path;
 use yaml_rust2::{Yaml, YamlLoader};
 
@@ -93,7 +94,7 @@ pub fn parse_opencv_yaml(
         let rot = matrix(&edoc, extri, &format!("Rot_{n}"), n, &[(3, 3)])?;
         let r = match (rv, rot) {
             (Some(v), rot) => {
-                let r = rodrigues_to_matrix([v[0], v[1], v[2]]);
+                let r = from_rotation_vector([v[0], v[1], v[2]]);
                 if let Some(m) = rot {
                     let worst = (0..9)
                         .map(|i| (r[i / 3][i % 3] - m[i]).abs())

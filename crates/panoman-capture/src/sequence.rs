@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use panoman_human::keypoints::{FACE_OFFSET, KeypointsFile};
 use panoman_interchange::keypoints_in::{Keypoints2d, read_openpose_2d};
 use panoman_mesh::geom::V3;
+use panoman_mesh::stats::median;
 use rayon::prelude::*;
 
 use crate::camera::Camera;
@@ -215,7 +216,7 @@ pub fn estimate_offsets(
                 }
             }
         }
-        (crate::sequence::median(&mut errs), errs.len())
+        (median(&mut errs), errs.len())
     };
     let max = max_offset as i64;
     let mut out = vec![OffsetEstimate {
@@ -251,20 +252,6 @@ pub fn estimate_offsets(
         });
     }
     Ok(out)
-}
-
-/// Median of `v` (sorted in place); NaN when empty.
-pub fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
 }
 
 /// The common frames of `detections` under `offsets`: `t` such that every camera's frame

@@ -19,9 +19,10 @@
 //! millimetres), hence [`TomlOptions::translation_unit_m`]. Fisheye cameras are rejected.
 //! `matrix[0][1]` is read as the skew.
 
-use crate::camera::{Camera, matrix_to_rodrigues, rodrigues_to_matrix};
+use crate::camera::Camera;
 use crate::check_unique_names;
 use crate::error::{CaptureError, Result, read_text};
+use panoman_mesh::rotation::{from_rotation_vector, rotation_vector};
 use std::fmt::Write as _;
 use std::path::Path;
 use toml::Value;
@@ -125,7 +126,7 @@ pub fn parse_toml(text: &str, path: &Path, options: &TomlOptions) -> Result<Vec<
             cy: m[1][2],
             skew: m[0][1],
             dist,
-            r: rodrigues_to_matrix(rv),
+            r: from_rotation_vector(rv),
             t: [tv[0] * unit, tv[1] * unit, tv[2] * unit],
             image_size: Some(image_size),
             active: true,
@@ -203,7 +204,7 @@ pub fn to_toml_string(cameras: &[Camera]) -> Result<String> {
                 c.name
             )));
         }
-        let rv = matrix_to_rodrigues(&c.r);
+        let rv = rotation_vector(&c.r);
         let [k1, k2, p1, p2, k3] = c.dist;
         let dist = if k3 == 0.0 {
             format!("[ {k1:?}, {k2:?}, {p1:?}, {p2:?}]")

@@ -5,8 +5,7 @@ mod common;
 
 use common::{cloud, rig};
 use panoman_capture::Camera;
-use panoman_capture::camera::{matrix_to_rodrigues, rodrigues_to_matrix};
-use panoman_mesh::geom::{V3, cross, dot, frobenius_diff, norm, sub};
+use panoman_mesh::geom::{V3, cross, dot, norm, sub};
 
 #[test]
 fn jacobian_matches_central_differences() {
@@ -140,35 +139,4 @@ fn validate_rejects_bad_cameras() {
     let mut c = good;
     c.image_size = None; // unknown size is accepted
     c.validate().unwrap();
-}
-
-#[test]
-fn rodrigues_round_trips_including_near_zero_and_pi() {
-    let axes = [[1.0, 0.0, 0.0], [0.3, -0.5, 0.8], [-0.2, 0.9, 0.1]];
-    let angles = [
-        0.0,
-        1e-9,
-        1e-5,
-        0.3,
-        1.5,
-        2.5,
-        3.1,
-        std::f64::consts::PI - 1e-7,
-    ];
-    for a in axes {
-        let n = norm(a);
-        for th in angles {
-            let v = [a[0] / n * th, a[1] / n * th, a[2] / n * th];
-            let r = rodrigues_to_matrix(v);
-            let back = matrix_to_rodrigues(&r);
-            let r2 = rodrigues_to_matrix(back);
-            assert!(
-                frobenius_diff(&r, &r2) < 1e-12,
-                "θ = {th}: {v:?} → {back:?}"
-            );
-            if th < 3.0 {
-                assert!(norm(sub(back, v)) < 1e-9, "θ = {th}: {v:?} → {back:?}");
-            }
-        }
-    }
 }

@@ -5,8 +5,8 @@ mod common;
 
 use common::{cloud, max_px_diff, rig};
 use panoman_capture::Camera;
-use panoman_capture::camera::matrix_to_rodrigues;
 use panoman_capture::opencv_yaml::{parse_opencv_yaml, read_opencv_yaml};
+use panoman_mesh::rotation::rotation_vector;
 use std::path::Path;
 
 /// A number as OpenCV prints it: `1.1000000000000000e+03`, `0.`.
@@ -55,7 +55,7 @@ fn extri(cams: &[Camera], with_rot: bool, with_rvec: bool) -> String {
     }
     for c in cams {
         if with_rvec {
-            s += &mat(&format!("R_{}", c.name), 3, 1, &matrix_to_rodrigues(&c.r));
+            s += &mat(&format!("R_{}", c.name), 3, 1, &rotation_vector(&c.r));
         }
         if with_rot {
             let r: Vec<f64> = c.r.iter().flatten().copied().collect();

@@ -4,8 +4,8 @@
 mod common;
 
 use common::{cloud, max_px_diff, rig, temp_dir};
-use panoman_capture::camera::matrix_to_rodrigues;
 use panoman_capture::toml_calib::{TomlOptions, parse_toml, read_toml, to_toml_string, write_toml};
+use panoman_mesh::rotation::rotation_vector;
 use std::path::Path;
 
 #[test]
@@ -33,7 +33,7 @@ fn write_then_read_round_trips_to_1e9_px() {
 fn pose2sim_text(unit_per_m: f64) -> String {
     let mut s = String::new();
     for (i, c) in rig().iter().enumerate() {
-        let rv = matrix_to_rodrigues(&c.r);
+        let rv = rotation_vector(&c.r);
         let [w, h] = c.image_size.unwrap();
         s += &format!(
             "[cam_{i}]\nname = \"{}\"\nsize = [ {w}.0, {h}.0]\nmatrix = [ [ {:?}, 0.0, {:?}], [ 0.0, {:?}, {:?}], [ 0.0, 0.0, 1.0]]\n\

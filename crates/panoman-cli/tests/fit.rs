@@ -189,8 +189,8 @@ fn cold_keypoint_stage_stops_after_one_step_only_within_its_tolerance() {
 /// third frame, back at the first pose, returns to it.
 #[test]
 fn sequence_follows_a_rigid_motion_and_propagates_the_placement() {
-    use panoman_mesh::align::axis_angle;
     use panoman_mesh::geom::{add, matmul, matvec};
+    use panoman_mesh::rotation::axis_angle;
     let (_, data, model_path) = trained();
     let (model, rig) = model_and_rig(model_path);
     let ik = rig.ik_solver().unwrap();

@@ -62,17 +62,6 @@ fn person(bones: &BoneMap, i: u64) -> GeneratorParams {
     GeneratorParams { shape, pose }
 }
 
-fn median(v: &[f64]) -> f64 {
-    let mut v = v.to_vec();
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 fn dist_mm(a: [f64; 3], b: [f64; 3]) -> f64 {
     1e3 * ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
@@ -221,7 +210,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "median time per IK {:.1} ms (mean {:.1} ms, max {:.1} ms); mean keypoint residual \
          {:.3} mm (body {:.3}, face {:.3}, left hand {:.3}, right hand {:.3})",
-        1e3 * median(&times),
+        1e3 * panoman_mesh::stats::median(&mut times.clone()),
         1e3 * times.iter().sum::<f64>() / nf,
         1e3 * times.iter().copied().fold(0.0, f64::max),
         kp_mean.iter().sum::<f64>() / nf,

@@ -28,8 +28,9 @@ use crate::error::{FitError, Result};
 use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences_on};
 use crate::quality::{QualityOptions, Verdict};
 use panoman_human::keypoints::{KeypointGroup, KeypointsFile};
-use panoman_mesh::align::{Rigid, axis_angle, rigid_align};
+use panoman_mesh::align::{Rigid, rigid_align};
 use panoman_mesh::geom::{V3, add, dot, matmul, matvec, norm, scale, sub};
+use panoman_mesh::rotation::{from_rotation_vector, rotation_vector};
 use panoman_mesh::shell::{
     Handle, PcgOptions, PointConstraint, ShellOptions, ShellReport, ShellSolver, ShellTargets,
 };
@@ -1070,7 +1071,7 @@ impl Fitter {
                 // The torso patch's rigid motion since the previous frame, applied to the
                 // previous placement.
                 let k = rigid_align(&prev.vertices, x, Some(&self.torso_weights));
-                let r0 = axis_angle_matrix(prev.params.rotation);
+                let r0 = from_rotation_vector(prev.params.rotation);
                 Rigid {
                     r: matmul(&k.r, &r0),
                     t: add(matvec(&k.r, prev.params.translation), k.t),
@@ -1137,16 +1138,6 @@ fn torso_weights(model: &PanoManModel, rest: &[V3]) -> Vec<f64> {
     }
 }
 
-/// The rotation of an axis·angle vector (identity for 0).
-fn axis_angle_matrix(r: V3) -> [[f64; 3]; 3] {
-    let a = norm(r);
-    if a == 0.0 {
-        panoman_mesh::geom::IDENTITY
-    } else {
-        axis_angle(r, a)
-    }
-}
-
 /// Residual per keypoint group (mm) of the model's keypoints on `x` against the targets.
 pub fn keypoint_residuals(
     model: &PanoManModel,
@@ -1178,66 +1169,4 @@ pub fn group_residuals(
         g.mean_mm /= g.n.max(1) as f64;
     }
     out
-}
-
-/// The rotation vector (axis·angle, radians) of a rotation matrix: the SO(3) logarithm,
-/// `θ = atan2(|w|, (tr R − 1)/2)` with `w = vee(R − Rᵀ)/2`; near θ = π the axis is taken from
-/// the largest diagonal entry of `(R + I)/2`.
-pub fn rotation_vector(r: &[[f64; 3]; 3]) -> V3 {
-    let w = [
-        0.5 * (r[2][1] - r[1][2]),
-        0.5 * (r[0][2] - r[2][0]),
-        0.5 * (r[1][0] - r[0][1]),
-    ];
-    let s = norm(w);
-    let c = 0.5 * (r[0][0] + r[1][1] + r[2][2] - 1.0);
-    let theta = s.atan2(c);
-    if c > 0.0 || s > 1e-6 {
-        // Away from θ = π the axis is w/|w|; θ/s → 1 as θ → 0, and s = 0 with c > 0 is I.
-        if s == 0.0 {
-            return [0.0; 3];
-        }
-        return [w[0] * theta / s, w[1] * theta / s, w[2] * theta / s];
-    }
-    // θ ≈ π: R ≈ 2aaᵀ − I.
-    let i = (0..3)
-        .max_by(|&a, &b| r[a][a].total_cmp(&r[b][b]))
-        .expect("three");
-    let mut a = [0.0; 3];
-    a[i] = (0.5 * (r[i][i] + 1.0)).max(0.0).sqrt();
-    for j in 0..3 {
-        if j != i {
-            a[j] = 0.5 * (r[j][i] + r[i][j]) / (2.0 * a[i]).max(1e-300) * 1.0;
-        }
-    }
-    let n = norm(a).max(1e-300);
-    [a[0] / n * theta, a[1] / n * theta, a[2] / n * theta]
-}
-
-#[cfg(test)]
-mod tests {
-    use super::rotation_vector;
-    use panoman_mesh::align::axis_angle;
-
-    /// `rotation_vector` inverts `axis_angle` for angles in (0, π], including the θ ≈ 0 and
-    /// θ ≈ π branches (at π the axis sign is ambiguous: ±a·π are the same rotation).
-    #[test]
-    fn rotation_vector_inverts_axis_angle() {
-        let axes = [
-            [1.0, 0.0, 0.0],
-            [0.0, 0.6, 0.8],
-            [0.48, -0.6, 0.64],
-            [-0.36, 0.48, 0.8],
-        ];
-        for a in axes {
-            for theta in [1e-9, 1e-4, 0.3, 1.5, 3.0, std::f64::consts::PI - 1e-7] {
-                let v = rotation_vector(&axis_angle(a, theta));
-                let want = a.map(|c| c * theta);
-                let err = (0..3).map(|k| (v[k] - want[k]).abs()).fold(0.0, f64::max);
-                let err_flip = (0..3).map(|k| (v[k] + want[k]).abs()).fold(0.0, f64::max);
-                let ok = err < 1e-9 || (theta > 3.1 && err_flip < 1e-6);
-                assert!(ok, "axis {a:?} θ {theta}: got {v:?}, want {want:?}");
-            }
-        }
-    }
 }

@@ -7,6 +7,7 @@
 //! intervals of the rest `t`; the *radius ratio* of a slice is the median over its vertices of
 //! the posed distance to the posed axis divided by the median rest distance to the rest axis.
 use panoman_mesh::geom::{V3, dot, norm, sub};
+use panoman_mesh::stats::median;
 
 /// Vertices of a limb segment with their rest parameter `t` (module docs).
 #[derive(Clone, Debug)]
@@ -71,19 +72,5 @@ impl LimbSegment {
                 if a > 0.0 { b / a } else { f64::NAN }
             })
             .collect()
-    }
-}
-
-/// Median (NaN when empty).
-pub fn median(x: &mut [f64]) -> f64 {
-    if x.is_empty() {
-        return f64::NAN;
-    }
-    x.sort_by(f64::total_cmp);
-    let m = x.len() / 2;
-    if x.len() % 2 == 1 {
-        x[m]
-    } else {
-        0.5 * (x[m - 1] + x[m])
     }
 }

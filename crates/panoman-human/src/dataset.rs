@@ -609,13 +609,7 @@ fn temp_path(path: &Path) -> PathBuf {
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    panoman_mesh::io::remove_stale_temp_files(path);
-    let tmp = temp_path(path);
-    std::fs::write(&tmp, bytes).map_err(|e| HumanError::io(path, e))?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        HumanError::io(path, e)
-    })
+    Ok(panoman_mesh::io::write_bytes_atomically(path, bytes)?)
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -650,11 +650,11 @@ impl<'g> Identity<'g> {
             if a == [0.0; 3] {
                 Affine::IDENTITY.m
             } else {
-                rig::euler_xyz_deg(a)
+                panoman_mesh::rotation::euler_xyz_deg(a)
             }
         };
         let mut d = Vec::with_capacity(n);
-        let rz = rig::rot_z(pose.root_rotation_z_deg.to_radians());
+        let rz = panoman_mesh::rotation::rot_z(pose.root_rotation_z_deg.to_radians());
         let h0 = self.heads[0];
         let u = pose.root_translation;
         d.push(Affine::new(

@@ -14,6 +14,7 @@ use std::fmt;
 use std::path::Path;
 
 use panoman_mesh::geom::{M3, V3, add, cross, dot, matmul, matvec, norm, scale, sub, transpose};
+use panoman_mesh::rotation::rodrigues;
 use serde::de::{Deserializer, MapAccess, Visitor};
 use serde_json::Value;
 
@@ -423,19 +424,6 @@ pub fn joint_mean(vs: &[u32], map: &[u32], pos: &[V3]) -> V3 {
     scale(s, 1.0 / vs.len() as f64)
 }
 
-/// Rotation of `angle` radians about the unit `axis` (Rodrigues):
-/// `R = cos θ I + sin θ [k]ₓ + (1 − cos θ) k kᵀ`.
-pub fn rodrigues(axis: V3, angle: f64) -> M3 {
-    let (s, c) = angle.sin_cos();
-    let [x, y, z] = axis;
-    let t = 1.0 - c;
-    [
-        [c + t * x * x, t * x * y - s * z, t * x * z + s * y],
-        [t * x * y + s * z, c + t * y * y, t * y * z - s * x],
-        [t * x * z - s * y, t * y * z + s * x, c + t * z * z],
-    ]
-}
-
 /// Rest orientation of a bone from head `h`, tail `t` and roll `r` (docs/design/rig-and-ik.md §2.3, "blender" frame):
 ///
 /// `y = (t − h)/|t − h|`, `w = y × e_Y`, `angle = atan2(|w|, y·e_Y)`,
@@ -499,33 +487,10 @@ pub fn forward_kinematics(
     }
 }
 
-/// Rotation about the X axis by `a` radians.
-pub fn rot_x(a: f64) -> M3 {
-    let (s, c) = a.sin_cos();
-    [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]
-}
-
-/// Rotation about the Y axis by `a` radians.
-pub fn rot_y(a: f64) -> M3 {
-    let (s, c) = a.sin_cos();
-    [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
-}
-
-/// Rotation about the Z axis by `a` radians.
-pub fn rot_z(a: f64) -> M3 {
-    let (s, c) = a.sin_cos();
-    [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-}
-
-/// Blender "XYZ" Euler rotation from degrees: `R = Rz(z) · Ry(y) · Rx(x)` (x applied first).
-pub fn euler_xyz_deg(e: [f64; 3]) -> M3 {
-    let r = |d: f64| d.to_radians();
-    matmul(&rot_z(r(e[2])), &matmul(&rot_y(r(e[1])), &rot_x(r(e[0]))))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use panoman_mesh::rotation::euler_xyz_deg;
 
     fn close(a: &M3, b: &M3) -> bool {
         (0..3).all(|i| (0..3).all(|j| (a[i][j] - b[i][j]).abs() < 1e-14))

@@ -434,30 +434,13 @@ pub(crate) fn to_gltf(p: V3) -> [f32; 3] {
 /// Area-weighted unit vertex normals in glTF axes; +Y for vertices with no (non-degenerate)
 /// incident triangle.
 pub(crate) fn vertex_normals(positions: &[V3], faces: &[[u32; 3]]) -> Vec<[f32; 3]> {
-    let mut acc = vec![[0.0f64; 3]; positions.len()];
-    for f in faces {
-        let [a, b, c] = f.map(|v| positions[v as usize]);
-        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        let n = [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ];
-        for &i in f {
-            let s = &mut acc[i as usize];
-            s[0] += n[0];
-            s[1] += n[1];
-            s[2] += n[2];
-        }
-    }
-    acc.iter()
+    panoman_mesh::measure::vertex_normals_of(faces, positions)
+        .into_iter()
         .map(|n| {
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            if len > 0.0 && len.is_finite() {
-                to_gltf([n[0] / len, n[1] / len, n[2] / len])
-            } else {
+            if n == [0.0; 3] || !n.iter().all(|c| c.is_finite()) {
                 [0.0, 1.0, 0.0]
+            } else {
+                to_gltf(n)
             }
         })
         .collect()

@@ -305,44 +305,10 @@ fn top4(rows: &[Vec<(usize, f64)>]) -> (Vec<[u16; 4]>, Vec<[f32; 4]>) {
     (joints, weights)
 }
 
-/// Unit quaternion `[x, y, z, w]` of a rotation matrix (row-major), as `f32`.
+/// Unit quaternion `[x, y, z, w]` (glTF's order) of a rotation matrix, as `f32`.
 fn quat(m: &M3) -> [f32; 4] {
-    let tr = m[0][0] + m[1][1] + m[2][2];
-    let q = if tr > 0.0 {
-        let s = (tr + 1.0).sqrt() * 2.0;
-        [
-            (m[2][1] - m[1][2]) / s,
-            (m[0][2] - m[2][0]) / s,
-            (m[1][0] - m[0][1]) / s,
-            0.25 * s,
-        ]
-    } else if m[0][0] > m[1][1] && m[0][0] > m[2][2] {
-        let s = (1.0 + m[0][0] - m[1][1] - m[2][2]).sqrt() * 2.0;
-        [
-            0.25 * s,
-            (m[0][1] + m[1][0]) / s,
-            (m[0][2] + m[2][0]) / s,
-            (m[2][1] - m[1][2]) / s,
-        ]
-    } else if m[1][1] > m[2][2] {
-        let s = (1.0 + m[1][1] - m[0][0] - m[2][2]).sqrt() * 2.0;
-        [
-            (m[0][1] + m[1][0]) / s,
-            0.25 * s,
-            (m[1][2] + m[2][1]) / s,
-            (m[0][2] - m[2][0]) / s,
-        ]
-    } else {
-        let s = (1.0 + m[2][2] - m[0][0] - m[1][1]).sqrt() * 2.0;
-        [
-            (m[0][2] + m[2][0]) / s,
-            (m[1][2] + m[2][1]) / s,
-            0.25 * s,
-            (m[1][0] - m[0][1]) / s,
-        ]
-    };
-    let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
-    q.map(|x| (x / n) as f32)
+    let [w, x, y, z] = panoman_mesh::rotation::quaternion_of(m);
+    [x, y, z, w].map(|c| c as f32)
 }
 
 /// A rigid transform as a column-major 4×4 `f32` matrix.

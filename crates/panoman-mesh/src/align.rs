@@ -5,7 +5,8 @@
 //!   solve, docs/design/rla-and-g.md §3.3).
 //! * [`rigid_align`]: weighted Kabsch/Procrustes, `argmin_{R,t} Σ w_i |R a_i + t − b_i|²`.
 
-use crate::geom::{M3, V3, add, det, matmul, matvec, norm, sub, transpose};
+use crate::geom::{M3, V3, add, det, matvec, norm, sub, transpose};
+use crate::rotation::quat_to_matrix;
 
 /// A rigid motion `x ↦ R x + t`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -171,71 +172,6 @@ fn horn_rotation(m: &M3) -> M3 {
     quat_to_matrix([q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn])
 }
 
-/// Rotation matrix of the unit quaternion `(w, x, y, z)`.
-pub fn quat_to_matrix(q: [f64; 4]) -> M3 {
-    let [w, x, y, z] = q;
-    [
-        [
-            w * w + x * x - y * y - z * z,
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            w * w - x * x + y * y - z * z,
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            w * w - x * x - y * y + z * z,
-        ],
-    ]
-}
-
-/// Rotation by `angle` (radians) about the unit `axis` (Rodrigues' formula
-/// `R = I + sin θ K + (1 − cos θ) K²`, K the cross-product matrix of the axis).
-pub fn axis_angle(axis: V3, angle: f64) -> M3 {
-    let a = crate::geom::normalize(axis);
-    let (s, v) = sin_versine(angle);
-    let k = [[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]];
-    let k2 = matmul(&k, &k);
-    let mut r = crate::geom::IDENTITY;
-    for i in 0..3 {
-        for j in 0..3 {
-            r[i][j] += s * k[i][j] + v * k2[i][j];
-        }
-    }
-    r
-}
-
-/// `(sin θ, 1 − cos θ)`, both to a few ulps. For |θ| < 1/8 by their Taylor series to θ¹¹
-/// and θ¹² (remainders below 10⁻²⁰ relative), without the library call: the frame solve of
-/// `g` rotates every face by a small angle each iteration, and glibc's `sincos` costs
-/// ≈ 200 ns there (its rounding-mode guard): by timers, the face update was ≈ 70 % of an
-/// iteration. The series of `1 − cos θ` is
-/// also free of the cancellation of `1 − cos θ` computed from `cos θ`; larger angles use the
-/// half-angle forms.
-#[inline]
-pub fn sin_versine(angle: f64) -> (f64, f64) {
-    if angle.abs() < 0.125 {
-        let z = angle * angle;
-        let s = angle
-            * (1.0
-                - z / 6.0
-                    * (1.0 - z / 20.0 * (1.0 - z / 42.0 * (1.0 - z / 72.0 * (1.0 - z / 110.0)))));
-        let v = z / 2.0
-            * (1.0
-                - z / 12.0
-                    * (1.0 - z / 30.0 * (1.0 - z / 56.0 * (1.0 - z / 90.0 * (1.0 - z / 132.0)))));
-        (s, v)
-    } else {
-        // sin θ = 2 sin(θ/2) cos(θ/2), 1 − cos θ = 2 sin²(θ/2): one call, no cancellation.
-        let (sh, ch) = (0.5 * angle).sin_cos();
-        (2.0 * sh * ch, 2.0 * sh * sh)
-    }
-}
-
 /// Weighted Kabsch: the rigid motion minimising `Σ w_i |R a_i + t − b_i|²` (`weights = None`
 /// means all 1). With centroids `ā, b̄`, `R = nearest_rotation(Σ w (b−b̄)(a−ā)ᵀ)`, `t = b̄ − R ā`.
 pub fn rigid_align(a: &[V3], b: &[V3], weights: Option<&[f64]>) -> Rigid {
@@ -289,55 +225,4 @@ pub fn aligned_error(a: &[V3], b: &[V3]) -> (f64, f64) {
         sum += d;
     }
     (max, sum / a.len().max(1) as f64)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The series branch of [`sin_versine`] agrees with the library functions to a few ulps:
-    /// `sin θ` against `f64::sin`, `1 − cos θ` against `2 sin²(θ/2)` (no cancellation), on
-    /// angles from 10⁻¹² to the branch point, of both signs, and across the branch point.
-    #[test]
-    fn sin_versine_matches_the_library() {
-        let mut s = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let check = |t: f64| {
-            let (sn, v) = sin_versine(t);
-            let v_ref = 2.0 * (0.5 * t).sin().powi(2);
-            assert!(
-                (sn - t.sin()).abs() <= 4.0 * f64::EPSILON * t.sin().abs(),
-                "sin {t}"
-            );
-            assert!(
-                (v - v_ref).abs() <= 4.0 * f64::EPSILON * v_ref,
-                "versine {t}"
-            );
-        };
-        for _ in 0..100_000 {
-            let (u, w) = (next(), next());
-            let t = 0.125 * 10f64.powf(-11.0 * u) * if w < 0.5 { -1.0 } else { 1.0 };
-            check(t);
-        }
-        for t in [0.124_999_999, 0.125, 0.125_000_001, -0.125, 1.0, 3.0] {
-            check(t);
-        }
-        assert_eq!(sin_versine(0.0), (0.0, 0.0));
-        // A rotation from either branch is orthonormal to rounding.
-        for t in [1e-9, 0.1, 0.124_999, 0.125, 2.0] {
-            let r = axis_angle([1.0, 2.0, -0.5], t);
-            let rt = matmul(&r, &crate::geom::transpose(&r));
-            for (i, row) in rt.iter().enumerate() {
-                for (j, x) in row.iter().enumerate() {
-                    let id = if i == j { 1.0 } else { 0.0 };
-                    assert!((x - id).abs() < 1e-15, "R Rᵀ at {t}");
-                }
-            }
-        }
-    }
 }

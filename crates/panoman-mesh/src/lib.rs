@@ -20,9 +20,11 @@ pub mod measure;
 pub mod mesh;
 pub mod recon;
 pub mod rla;
+pub mod rotation;
 pub mod shapes;
 pub mod shell;
 pub mod sparse;
+pub mod stats;
 pub mod topology;
 
 pub use error::{MeshError, Result};

@@ -78,9 +78,16 @@ pub fn enclosed_volume(mesh: &TriMesh) -> f64 {
 /// `n_f = (pb − pa) × (pc − pa) = 2·A_f·n̂_f`, i.e. the face normals of the incident faces weighted
 /// by their areas. Vertices without incident faces (or whose sum vanishes) get `[0, 0, 0]`.
 pub fn vertex_normals(mesh: &TriMesh) -> Vec<[f64; 3]> {
-    let mut acc = vec![[0.0f64; 3]; mesh.positions.len()];
-    for f in &mesh.faces {
-        let n = area_vector(mesh, f);
+    vertex_normals_of(&mesh.faces, &mesh.positions)
+}
+
+/// [`vertex_normals`] of `positions` (metres) with the triangles `faces`, for positions held
+/// apart from a [`TriMesh`] (a posed frame of a fixed topology).
+pub fn vertex_normals_of(faces: &[[u32; 3]], positions: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let mut acc = vec![[0.0f64; 3]; positions.len()];
+    for f in faces {
+        let [a, b, c] = f.map(|i| positions[i as usize]);
+        let n = cross(sub(b, a), sub(c, a));
         for &v in f {
             acc[v as usize] = add(acc[v as usize], n);
         }

@@ -706,7 +706,7 @@ impl Reconstructor {
                             let w = [0, 1, 2].map(|k| -t * step[(rf as usize, k)]);
                             let a = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
                             *r = if a > 0.0 {
-                                matmul(&crate::align::axis_angle(w, a), &prev[f])
+                                matmul(&crate::rotation::axis_angle(w, a), &prev[f])
                             } else {
                                 prev[f]
                             };

@@ -3,12 +3,13 @@
 
 mod common;
 use common::{Rng, deform, grid, icosphere};
-use panoman_mesh::align::{Rigid, aligned_error, axis_angle, nearest_rotation, rigid_align};
+use panoman_mesh::align::{Rigid, aligned_error, nearest_rotation, rigid_align};
 use panoman_mesh::geom::{IDENTITY, M3, V3, det, matmul, matvec, sub, transpose};
 use panoman_mesh::recon::{connection_map, triangle_frame};
 use panoman_mesh::rla::{
     dihedral_angle, dihedral_angles, dihedral_gradient, edge_lengths, length_gradient, wrap_angle,
 };
+use panoman_mesh::rotation::axis_angle;
 use panoman_mesh::{Gauge, MeshError, Reconstructor, RestGeometry, Rla, Topology};
 use std::f64::consts::PI;
 

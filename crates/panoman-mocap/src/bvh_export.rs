@@ -11,7 +11,7 @@ use panoman_mesh::geom::{V3, matmul, sub, transpose};
 
 use crate::bvh::{Bvh, BvhJoint, Channel};
 use crate::error::{MocapError, Result};
-use crate::retarget::euler_xyz_deg;
+use panoman_mesh::rotation::euler_xyz_deg_of;
 
 /// The BVH of `poses` of `identity` (see the module docs), `frame_time_s` seconds apart.
 ///
@@ -71,7 +71,7 @@ pub fn rig_motion_bvh(identity: &Identity, poses: &[PoseParams], frame_time_s: f
                 }
                 Some(p) => matmul(&transpose(&posed.skin[p].m), &q),
             };
-            let [x, y, z] = euler_xyz_deg(&local);
+            let [x, y, z] = euler_xyz_deg_of(&local);
             motion.extend_from_slice(&[z, y, x]);
         }
     }

@@ -69,22 +69,13 @@ pub(crate) fn read_text(path: &std::path::Path) -> Result<String> {
     })
 }
 
-/// Writes a file atomically (temporary sibling + rename), mapping errors to
-/// [`MocapError::Io`].
+/// Writes a file atomically (the project's one atomic writer,
+/// [`panoman_mesh::io::write_bytes_atomically`]), mapping its errors to [`MocapError::Io`] or
+/// [`MocapError::Format`] naming `path`.
 pub(crate) fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
-    let io = |p: &std::path::Path| {
-        let p = p.to_path_buf();
-        move |source| MocapError::Io { path: p, source }
-    };
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(format!(".tmp{}", std::process::id()));
-    let tmp = PathBuf::from(tmp);
-    std::fs::write(&tmp, bytes).map_err(io(&tmp))?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        MocapError::Io {
-            path: path.to_path_buf(),
-            source: e,
-        }
+    use panoman_mesh::MeshError;
+    panoman_mesh::io::write_bytes_atomically(path, bytes).map_err(|e| match e {
+        MeshError::Io { path, source } => MocapError::Io { path, source },
+        other => format_err(path, other.to_string()),
     })
 }

@@ -25,6 +25,7 @@
 //! (`low_m`); frames where the marker is missing or cannot be judged continue the run. A
 //! score above `low_m` that no frame above the threshold joins is not flagged.
 use crate::markers::MarkerSequence;
+use panoman_mesh::stats::median;
 
 /// Rigid neighbours per marker and frame.
 pub const NEIGHBOURS: usize = 3;
@@ -39,18 +40,6 @@ pub const SAMPLE_STEP: usize = 5;
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        f64::NAN
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
 }
 
 fn observed(p: &[f64; 3]) -> bool {

@@ -349,23 +349,16 @@ pub fn surface_point(faces: &[[u32; 3]], x: &[V3], tri: u32, b: V3) -> V3 {
 
 /// Area-weighted vertex normals (unit; `sign` flips them outward).
 pub fn vertex_normals(faces: &[[u32; 3]], x: &[V3], sign: f64) -> Vec<V3> {
-    let mut n = vec![[0.0; 3]; x.len()];
-    for f in faces {
-        let [a, b, c] = f.map(|i| x[i as usize]);
-        let fn_ = cross(sub(b, a), sub(c, a));
-        for &i in f {
-            n[i as usize] = add(n[i as usize], fn_);
-        }
-    }
-    for v in &mut n {
-        let l = norm(*v);
-        *v = if l > 0.0 {
-            scale(*v, sign / l)
-        } else {
-            [0.0, 0.0, 1.0]
-        };
-    }
-    n
+    panoman_mesh::measure::vertex_normals_of(faces, x)
+        .into_iter()
+        .map(|n| {
+            if n == [0.0; 3] {
+                [0.0, 0.0, 1.0]
+            } else {
+                scale(n, sign)
+            }
+        })
+        .collect()
 }
 
 /// The interpolated unit normal at a surface point.

@@ -28,10 +28,11 @@
 use panoman_fit::shape_calibration::{LENGTH_KNOBS, fit_knobs, with_knobs};
 use panoman_human::generator::Identity;
 use panoman_human::params::{GeneratorParams, PoseParams, ShapeParams};
-use panoman_mesh::align::{axis_angle, nearest_rotation};
+use panoman_mesh::align::nearest_rotation;
 use panoman_mesh::geom::{
     IDENTITY, M3, V3, add, cross, dot, matmul, matvec, norm, normalize, scale, sub, transpose,
 };
+use panoman_mesh::rotation::{axis_angle, euler_xyz_deg_of};
 
 use crate::bvh::{Bvh, Rigid};
 use crate::error::{MocapError, Result};
@@ -336,7 +337,7 @@ impl CmuRetarget {
                     self.calib_local[c]
                 }
             };
-            euler.push(euler_xyz_deg(&e));
+            euler.push(euler_xyz_deg_of(&e));
         }
         let hips = scale(matvec(&a, bw[self.hips].1), self.scale);
         let q = add(hips, self.t_const);
@@ -350,19 +351,6 @@ impl CmuRetarget {
             },
         }
     }
-}
-
-/// Euler angles `[x, y, z]` in degrees with `m = Rz(z)·Ry(y)·Rx(x)` (the generator's
-/// convention; `y ∈ [−90°, 90°]`, `z = 0` at gimbal lock).
-pub fn euler_xyz_deg(m: &M3) -> [f64; 3] {
-    let sy = (-m[2][0]).clamp(-1.0, 1.0);
-    let y = sy.asin();
-    let (x, z) = if (1.0 - sy.abs()) > 1e-12 {
-        (m[2][1].atan2(m[2][2]), m[1][0].atan2(m[0][0]))
-    } else {
-        ((-m[1][2]).atan2(m[1][1]), 0.0)
-    };
-    [x.to_degrees(), y.to_degrees(), z.to_degrees()]
 }
 
 /// A similarity `x ↦ scale · R x + t`.

@@ -23,8 +23,8 @@ use std::time::Instant;
 use panoman::eval::{Groups, MeshTriple, PartErrors};
 use panoman::{FitRequest, IkStart, Method, Model, ShapeCalibrationOptions, Targets, Tracker, V3};
 use panoman_fit::shape_calibration::spread_frames;
-use panoman_fit::twist::median;
 use panoman_human::params::GeneratorParams;
+use panoman_mesh::stats::median;
 use serde::Serialize;
 
 use crate::bvh::Bvh;

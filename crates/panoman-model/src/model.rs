@@ -30,7 +30,6 @@ use crate::pca::ShapePca;
 use crate::splocs::SparseRows;
 use faer::{Mat, Side};
 use panoman_human::rigfile::RigData;
-use panoman_mesh::align::axis_angle;
 use panoman_mesh::geom::{V3, add, matvec};
 use panoman_mesh::{GWorkspace, Reconstructor, RestGeometry, Rla, Topology};
 use serde::{Deserialize, Serialize};
@@ -441,7 +440,7 @@ impl PanoManModel {
         let mut x = Vec::with_capacity(6 * m.theta_bones.len());
         for b in &m.theta_bones {
             let [ex, ey, ez] = euler(b).unwrap_or([0.0; 3]);
-            let r = crate::train::euler_xyz(ex, ey, ez);
+            let r = panoman_mesh::rotation::euler_xyz([ex, ey, ez]);
             // The first two columns of R, column-major.
             x.extend((0..6).map(|i| r[i % 3][i / 3]));
         }
@@ -943,7 +942,7 @@ impl Evaluator {
         let rest = self.model.rest_shape(&params.alpha);
         let rla = self.model.rla(params, correction);
         let mut out = self.reconstruct(&rest, &rla)?;
-        let r = axis_angle_or_identity(params.rotation);
+        let r = panoman_mesh::rotation::from_rotation_vector(params.rotation);
         for x in out.iter_mut() {
             *x = add(matvec(&r, *x), params.translation);
         }
@@ -1141,15 +1140,6 @@ impl BlockEncoder {
             ));
         }
         Ok(beta)
-    }
-}
-
-fn axis_angle_or_identity(r: [f64; 3]) -> panoman_mesh::geom::M3 {
-    let a = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
-    if a == 0.0 {
-        panoman_mesh::geom::IDENTITY
-    } else {
-        axis_angle(r, a)
     }
 }
 

@@ -625,7 +625,9 @@ pub fn train(
             let r = body_rows[i];
             let th = &ds.theta[r * p..(r + 1) * p];
             let b = index[j / 6] as usize;
-            let rot = euler_xyz(th[3 * b] as f64, th[3 * b + 1] as f64, th[3 * b + 2] as f64);
+            let rot = panoman_mesh::rotation::euler_xyz(
+                [th[3 * b], th[3 * b + 1], th[3 * b + 2]].map(f64::from),
+            );
             // 6-D representation: the first two columns of R.
             let (col, row) = ((j % 6) / 3, (j % 6) % 3);
             rot[row][col] as f32
@@ -773,18 +775,6 @@ fn is_body_bone(name: &str) -> bool {
         || name.starts_with("metacarpal")
         || name == "jaw"
         || name.starts_with("eye"))
-}
-
-/// `R = Rz(z)·Ry(y)·Rx(x)` (Blender "XYZ"), angles in radians; row-major.
-pub fn euler_xyz(x: f64, y: f64, z: f64) -> [[f64; 3]; 3] {
-    let (sx, cx) = x.sin_cos();
-    let (sy, cy) = y.sin_cos();
-    let (sz, cz) = z.sin_cos();
-    [
-        [cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],
-        [sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx],
-        [-sy, cy * sx, cy * cx],
-    ]
 }
 
 fn split_rows(

@@ -365,7 +365,7 @@ impl Model {
             }
             let built = ev.pose(&p, corr)?;
             let rigid = panoman_mesh::align::rigid_align(&built, vertices, None);
-            p.rotation = panoman_fit::fit::rotation_vector(&rigid.r);
+            p.rotation = panoman_mesh::rotation::rotation_vector(&rigid.r);
             p.translation = rigid.t;
             Ok(p)
         })

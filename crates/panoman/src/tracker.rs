@@ -159,7 +159,7 @@ impl Tracker {
                 }
             }
         }
-        let sum = fnv1a(&w.0);
+        let sum = panoman_mesh::io::fnv1a(&w.0);
         w.u64(sum);
         w.0
     }
@@ -177,7 +177,7 @@ impl Tracker {
             return Err(bad("no checkpoint header"));
         }
         let (body, sum) = bytes.split_at(bytes.len() - 8);
-        if fnv1a(body) != u64::from_le_bytes(sum.try_into().expect("8 bytes")) {
+        if panoman_mesh::io::fnv1a(body) != u64::from_le_bytes(sum.try_into().expect("8 bytes")) {
             return Err(bad("checksum mismatch (truncated or damaged)"));
         }
         let mut r = Dec {
@@ -293,13 +293,6 @@ impl Tracker {
 
 /// First bytes of a [`Tracker::checkpoint`] (format version 1).
 const CHECKPOINT_MAGIC: &[u8; 8] = b"PMTRKCK1";
-
-/// FNV-1a (64 bit) of `b`: the checkpoint's checksum.
-fn fnv1a(b: &[u8]) -> u64 {
-    b.iter().fold(0xcbf2_9ce4_8422_2325, |h, &x| {
-        (h ^ u64::from(x)).wrapping_mul(0x0100_0000_01b3)
-    })
-}
 
 /// Little-endian writer of the checkpoint (f64 as their bits: exact).
 struct Enc(Vec<u8>);

@@ -702,7 +702,7 @@ fn keypoint_residuals(
 /// Median of the finite values of `v` (NaN when none).
 fn median_of(v: &[f64]) -> f64 {
     let mut f: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    panoman_capture::sequence::median(&mut f)
+    panoman_mesh::stats::median(&mut f)
 }
 
 fn print_summary(s: &serde_json::Value) {

@@ -714,10 +714,7 @@ fn frame_stem(path: &Path, f: usize) -> String {
 
 /// FNV-1a 64 of `bytes` (identifies the model and frame files of a checkpoint), hex.
 fn fnv1a(bytes: &[u8]) -> String {
-    let h = bytes.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &x| {
-        (h ^ u64::from(x)).wrapping_mul(0x0100_0000_01b3)
-    });
-    format!("{h:016x}")
+    format!("{:016x}", panoman_mesh::io::fnv1a(bytes))
 }
 
 /// The foot–floor contact prior of one sequence (`--contacts`), detected from its frames'

@@ -9,7 +9,6 @@ use super::targets::PointTarget;
 use super::{FRAME_STEP, IkState, IkVariable, N_UNITS};
 use crate::error::{FitError, Result};
 use panoman_human::params::ShapeParams;
-use panoman_human::rig;
 use panoman_mesh::geom::{V3, add, cross, dot, matmul, matvec, scale, sub};
 use rayon::prelude::*;
 /// The Jacobian of one iteration (see [`IkSolver::jacobian`]).
@@ -417,9 +416,12 @@ impl IkSolver {
                     return [[0.0; 3]; 3];
                 }
                 let [_, ay, az] = st.angles[c];
-                let rz = rig::rot_z(az);
+                let rz = panoman_mesh::rotation::rot_z(az);
                 let n = [
-                    matvec(&matmul(&rz, &rig::rot_y(ay)), [1.0, 0.0, 0.0]),
+                    matvec(
+                        &matmul(&rz, &panoman_mesh::rotation::rot_y(ay)),
+                        [1.0, 0.0, 0.0],
+                    ),
                     [rz[0][1], rz[1][1], rz[2][1]],
                     [0.0, 0.0, 1.0],
                 ];

@@ -7,8 +7,8 @@ use super::jacobian::Jacobian;
 use super::keypoint_model::{Ctx, Current, PointModel, PtEval};
 use super::solver::IkSolver;
 use super::{IkConfig, IkState};
-use panoman_mesh::align::axis_angle;
 use panoman_mesh::geom::{V3, dot, matmul, norm, scale, sub};
+use panoman_mesh::rotation::axis_angle;
 use rayon::prelude::*;
 use std::sync::Arc;
 /// A target in solver terms.

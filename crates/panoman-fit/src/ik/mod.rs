@@ -117,9 +117,8 @@ use panoman_human::keypoints::KeypointGroup;
 use panoman_human::outputs::OutputTopology;
 use panoman_human::params::{GeneratorParams, ShapeParams};
 use panoman_human::phenotype::FACE_UNITS;
-use panoman_human::rig;
-use panoman_mesh::align::axis_angle;
 use panoman_mesh::geom::{IDENTITY, M3, V3, matmul};
+use panoman_mesh::rotation::axis_angle;
 
 /// The phenotype values the IK fits, in the order of [`IkState::phenotype`].
 pub const IK_PHENOTYPE: [&str; 6] = ["gender", "age", "muscle", "weight", "height", "proportions"];
@@ -288,8 +287,8 @@ impl IkState {
         let p = &params.pose;
         let root = p.euler_deg.first().copied().unwrap_or([0.0; 3]);
         s.rotation = matmul(
-            &rig::rot_z(p.root_rotation_z_deg.to_radians()),
-            &rig::euler_xyz_deg(root),
+            &panoman_mesh::rotation::rot_z(p.root_rotation_z_deg.to_radians()),
+            &panoman_mesh::rotation::euler_xyz_deg(root),
         );
         s.translation = p.root_translation;
         for (c, e) in p.euler_deg.iter().enumerate().skip(1).take(n_bones - 1) {

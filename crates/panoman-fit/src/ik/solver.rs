@@ -69,10 +69,7 @@ pub(super) fn euler_rad(e: [f64; 3]) -> M3 {
     if e == [0.0; 3] {
         IDENTITY
     } else {
-        matmul(
-            &rig::rot_z(e[2]),
-            &matmul(&rig::rot_y(e[1]), &rig::rot_x(e[0])),
-        )
+        panoman_mesh::rotation::euler_xyz(e)
     }
 }
 

@@ -307,6 +307,14 @@ pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomically(path, |w| std::io::Write::write_all(w, bytes))
 }
 
+/// FNV-1a (64 bit) of `bytes`: the checksum of checkpoints and the identity of the files they
+/// were made from (not cryptographic).
+pub fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &x| {
+        (h ^ u64::from(x)).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
 /// Writes `path` atomically: `body` writes into a buffered temporary file in the same directory,
 /// which is then flushed, synced to disk and renamed onto `path`. On any failure the temporary
 /// file is removed and a [`MeshError::Io`] naming `path` is returned. This is the one atomic

@@ -238,22 +238,6 @@ pub fn mean_of(xs: &[PartErrors]) -> PartErrors {
     m
 }
 
-/// (median, min, max) of a sample; NaN for an empty one (see [`MedianMinMax::of`]).
-pub(crate) fn median_min_max(xs: &[f64]) -> (f64, f64, f64) {
-    let mut v = xs.to_vec();
-    v.sort_by(|a, b| a.total_cmp(b));
-    let n = v.len();
-    if n == 0 {
-        return (f64::NAN, f64::NAN, f64::NAN);
-    }
-    let med = if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    };
-    (med, v[0], v[n - 1])
-}
-
 pub(crate) fn to_v3(x: Vec<[f32; 3]>) -> Vec<V3> {
     x.iter()
         .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
@@ -284,12 +268,6 @@ impl Noise {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn median_min_max_of_even_and_empty_samples() {
-        assert_eq!(median_min_max(&[3.0, 1.0, 2.0, 10.0]), (2.5, 1.0, 10.0));
-        assert!(median_min_max(&[]).0.is_nan());
-    }
 
     #[test]
     fn noise_is_deterministic_and_roughly_standard() {

@@ -215,7 +215,7 @@ impl MedianMinMax {
     /// The median, min and max of a sample (the median of an even count is the mean of the
     /// middle two); NaN for an empty sample.
     pub fn of(xs: &[f64]) -> MedianMinMax {
-        let (median, min, max) = super::metrics::median_min_max(xs);
+        let (median, min, max) = panoman_mesh::stats::median_min_max(xs);
         MedianMinMax { max, median, min }
     }
 }

@@ -2,11 +2,11 @@
 use std::collections::BTreeMap;
 
 use super::fitting::StageTimes;
-use super::metrics::median_min_max;
 use super::summary::{
     ClipSummary, Headline, HeldOutFits, MedianMinMax, PerMethod, StageTiming, TimingSummary,
     TwistSummary, TwistVolumes,
 };
+use panoman_mesh::stats::median_min_max;
 
 /// Paper Table 1: total seconds per frame.
 const PAPER_TOTAL_S: f64 = 274.5;
