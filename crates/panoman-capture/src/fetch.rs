@@ -68,16 +68,7 @@ pub fn trial_calibration(trial: &Path) -> Result<PathBuf> {
     )))
 }
 
-/// What [`fetch_video_demo`] did.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct FetchReport {
-    /// The target directory.
-    pub dir: PathBuf,
-    /// The files installed (relative to `dir`), stamp excluded.
-    pub files: Vec<String>,
-    /// True when the target already held the pinned demos and nothing was done.
-    pub already_present: bool,
-}
+pub use panoman_human::assets::FetchReport;
 
 #[derive(serde::Serialize, serde::Deserialize)]
 struct Stamp {

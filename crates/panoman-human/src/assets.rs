@@ -294,6 +294,19 @@ pub fn ensure_default() -> Result<AssetDir> {
     ensure(&default_dir())
 }
 
+/// The outcome of a data fetch (`panoman data fetch mocap` and `video`): the target directory,
+/// the files it holds (relative to it, the fetch's stamp excluded), and whether they were
+/// already there, verified, so that nothing was done.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FetchReport {
+    /// The target directory.
+    pub dir: PathBuf,
+    /// The files of the fetch, relative to `dir`.
+    pub files: Vec<String>,
+    /// True when the target already held the verified files and nothing was done.
+    pub already_present: bool,
+}
+
 /// Fetches the pinned assets into `dir` and opens it; returns at once if `dir` is already
 /// complete.
 ///

@@ -122,14 +122,7 @@ pub fn verify_real_mocap(dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// What [`fetch_real_mocap`] did.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct FetchReport {
-    /// The target directory.
-    pub dir: PathBuf,
-    /// True when the target already held verified files and nothing was done.
-    pub already_present: bool,
-}
+pub use panoman_human::assets::FetchReport;
 
 /// Options of [`fetch_real_mocap_with`].
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -167,6 +160,7 @@ pub fn fetch_real_mocap_with(dir: &Path, opts: &FetchOptions) -> Result<FetchRep
     if !opts.force && verify_real_mocap(dir).is_ok() {
         return Ok(FetchReport {
             dir: dir.to_path_buf(),
+            files: file_names(),
             already_present: true,
         });
     }
@@ -184,8 +178,17 @@ pub fn fetch_real_mocap_with(dir: &Path, opts: &FetchOptions) -> Result<FetchRep
     let _ = std::fs::remove_dir_all(&tmp);
     result.map(|()| FetchReport {
         dir: dir.to_path_buf(),
+        files: file_names(),
         already_present: false,
     })
+}
+
+/// The names of [`REAL_MOCAP_FILES`].
+fn file_names() -> Vec<String> {
+    REAL_MOCAP_FILES
+        .iter()
+        .map(|f| f.name.to_string())
+        .collect()
 }
 
 /// Downloads (or takes) the packages, extracts them and assembles `tmp/out`.
