@@ -511,7 +511,7 @@ pub fn mean_acceleration(tracks: &[Vec<Option<V3>>], fps: f64) -> f64 {
 
 /// Per held-out camera, the figures of the leave-one-camera-out evaluation.
 #[derive(Debug, Clone, serde::Serialize)]
-pub struct HeldOut {
+pub struct HeldOutCamera {
     /// The held-out camera.
     pub camera: String,
     /// Frames scored.

@@ -6,8 +6,8 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use panoman::{Method, Model};
 use panoman_capture::capture::{
-    CaptureConfig, HeldOut, Mask, Tracked, keypoint_tracks, mean_acceleration, track, track_2d,
-    vertex_tracks, view_errors,
+    CaptureConfig, HeldOutCamera, Mask, Tracked, keypoint_tracks, mean_acceleration, track,
+    track_2d, vertex_tracks, view_errors,
 };
 use panoman_capture::frame::TriangulatedFrame;
 use panoman_capture::reproject::ReprojectionOptions;
@@ -861,7 +861,7 @@ fn write_overlays(
 
 /// Per held-out camera, the per-frame median body-keypoint error (pixels) of PanoMan, LBS and
 /// the other cameras' triangulation.
-fn plot_held_out(path: &Path, rows: &[HeldOut]) -> Result<()> {
+fn plot_held_out(path: &Path, rows: &[HeldOutCamera]) -> Result<()> {
     let panels: Vec<(String, String, Vec<crate::plot::Series>)> = rows
         .iter()
         .map(|r| {
@@ -983,7 +983,7 @@ fn evaluate_held_out(
     cfg: &CaptureConfig,
     mask_scale: f64,
     sigma: f64,
-) -> Result<HeldOut> {
+) -> Result<HeldOutCamera> {
     let raw = triangulate_sequence(cameras, dets, offsets, &[h], topts)?;
     let tri = smooth_keypoints(&raw, sigma);
     let passes = if a.no_refine_2d { 1 } else { 2 };
@@ -1142,7 +1142,7 @@ fn evaluate_held_out(
             )
         })
         .collect();
-    Ok(HeldOut {
+    Ok(HeldOutCamera {
         fit_residual_mm,
         camera: cam.name.clone(),
         frames: tri.len(),
