@@ -27,8 +27,7 @@ pub const CMU_UNIT_M: f64 = 0.0254 / 0.45;
 /// Deepest joint nesting accepted (guards the recursive parser).
 pub const MAX_DEPTH: usize = 256;
 
-/// A rotation `R` (row-major) and translation `t`: `x ↦ R·x + t`.
-pub type Rigid = ([[f64; 3]; 3], [f64; 3]);
+pub use panoman_mesh::align::Rigid;
 
 /// One BVH channel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -141,11 +140,6 @@ pub fn mul3(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
     o
 }
 
-fn apply(t: &Rigid, x: [f64; 3]) -> [f64; 3] {
-    let r = crate::markers::matvec(&t.0, x);
-    [r[0] + t.1[0], r[1] + t.1[1], r[2] + t.1[2]]
-}
-
 impl Bvh {
     /// Number of channels over all joints.
     pub fn n_channels(&self) -> usize {
@@ -202,10 +196,13 @@ impl Bvh {
                 }
             }
             let w = match j.parent {
-                None => (r, t),
+                None => Rigid { r, t },
                 Some(p) => {
                     let pw = &out[p];
-                    (mul3(&pw.0, &r), apply(pw, t))
+                    Rigid {
+                        r: mul3(&pw.r, &r),
+                        t: pw.apply(t),
+                    }
                 }
             };
             out.push(w);
@@ -219,7 +216,7 @@ impl Bvh {
     /// If `f ≥ n_frames`.
     #[track_caller]
     pub fn joint_positions(&self, f: usize) -> Vec<[f64; 3]> {
-        self.world_transforms(f).into_iter().map(|w| w.1).collect()
+        self.world_transforms(f).into_iter().map(|w| w.t).collect()
     }
 
     /// World positions of the end sites at frame `f`, as `(joint index, position)`.
@@ -232,7 +229,7 @@ impl Bvh {
         self.joints
             .iter()
             .enumerate()
-            .filter_map(|(i, j)| j.end_site.map(|e| (i, apply(&w[i], e))))
+            .filter_map(|(i, j)| j.end_site.map(|e| (i, w[i].apply(e))))
             .collect()
     }
 

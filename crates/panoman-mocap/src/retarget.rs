@@ -224,7 +224,7 @@ impl CmuRetarget {
             })
             .collect();
         let bw = bvh.world_transforms(frame);
-        let bp: Vec<V3> = bw.iter().map(|w| w.1).collect();
+        let bp: Vec<V3> = bw.iter().map(|w| w.t).collect();
         // 1. Frames: A = Y0 · Rx(90°).
         let rx = [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]];
         let hip = matvec(&rx, sub(bp[joint("LeftUpLeg")?], bp[joint("RightUpLeg")?]));
@@ -299,7 +299,7 @@ impl CmuRetarget {
             calib_local: local,
             calib_world,
             driver,
-            bvh_calib: bw.iter().map(|w| w.0).collect(),
+            bvh_calib: bw.iter().map(|w| w.r).collect(),
             hips,
             h0: heads[0],
             q_off,
@@ -325,7 +325,7 @@ impl CmuRetarget {
             };
             let e = match self.driver[c] {
                 Some(j) => {
-                    let db = matmul(&bw[j].0, &transpose(&self.bvh_calib[j]));
+                    let db = matmul(&bw[j].r, &transpose(&self.bvh_calib[j]));
                     g[c] = matmul(
                         &matmul(&matmul(&a, &db), &transpose(&a)),
                         &self.calib_world[c],
@@ -339,7 +339,7 @@ impl CmuRetarget {
             };
             euler.push(euler_xyz_deg_of(&e));
         }
-        let hips = scale(matvec(&a, bw[self.hips].1), self.scale);
+        let hips = scale(matvec(&a, bw[self.hips].t), self.scale);
         let q = add(hips, self.t_const);
         let root_head = sub(q, matvec(&g[0], self.q_off));
         GeneratorParams {
