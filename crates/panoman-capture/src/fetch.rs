@@ -9,6 +9,7 @@
 //! then renamed into place) and idempotent (a target whose stamp names the pinned wheel is left
 //! alone unless forced).
 
+pub use panoman_human::assets::FetchReport;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
@@ -67,8 +68,6 @@ pub fn trial_calibration(trial: &Path) -> Result<PathBuf> {
         trial.display()
     )))
 }
-
-pub use panoman_human::assets::FetchReport;
 
 #[derive(serde::Serialize, serde::Deserialize)]
 struct Stamp {

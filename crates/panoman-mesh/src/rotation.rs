@@ -90,8 +90,8 @@ pub fn axis_angle(axis: V3, angle: f64) -> M3 {
 
 /// Rotation of `angle` radians about the unit `axis` by the library `sin_cos`:
 /// `R = cos θ I + sin θ [k]ₓ + (1 − cos θ) k kᵀ`. The generator's rest frames are built with
-/// this form (as Anny's reference builds them), so its meshes stay bit for bit what they are;
-/// [`axis_angle`] (which also normalizes the axis) differs from it by a few ulps.
+/// this form, as Anny's reference builds them; [`axis_angle`] (which also normalizes the axis)
+/// differs from it by a few ulps.
 pub fn rodrigues(axis: V3, angle: f64) -> M3 {
     let (s, c) = angle.sin_cos();
     let [x, y, z] = axis;
@@ -104,12 +104,10 @@ pub fn rodrigues(axis: V3, angle: f64) -> M3 {
 }
 
 /// `(sin θ, 1 − cos θ)`, both to a few ulps. For |θ| < 1/8 by their Taylor series to θ¹¹
-/// and θ¹² (remainders below 10⁻²⁰ relative), without the library call: the frame solve of
-/// `g` rotates every face by a small angle each iteration, and glibc's `sincos` costs
-/// ≈ 200 ns there (its rounding-mode guard): by timers, the face update was ≈ 70 % of an
-/// iteration. The series of `1 − cos θ` is
-/// also free of the cancellation of `1 − cos θ` computed from `cos θ`; larger angles use the
-/// half-angle forms.
+/// and θ¹² (remainders below 10⁻²⁰ relative), without the library call, which dominates the
+/// frame solve of `g` (every face rotates by a small angle each iteration); the series of
+/// `1 − cos θ` is also free of the cancellation of `1 − cos θ` computed from `cos θ`. Larger
+/// angles use the half-angle forms.
 #[inline]
 pub fn sin_versine(angle: f64) -> (f64, f64) {
     if angle.abs() < 0.125 {

@@ -9,6 +9,7 @@
 //! renamed into place) and idempotent (a target whose captures already verify is left
 //! alone).
 
+pub use panoman_human::assets::FetchReport;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -121,8 +122,6 @@ pub fn verify_real_mocap(dir: &Path) -> Result<()> {
     }
     Ok(())
 }
-
-pub use panoman_human::assets::FetchReport;
 
 /// Options of [`fetch_real_mocap_with`].
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
