@@ -29,6 +29,6 @@ pub mod topology;
 
 pub use error::{MeshError, Result};
 pub use mesh::TriMesh;
-pub use recon::{GLinearization, GWorkspace, Gauge, Reconstructor};
+pub use recon::{GDerivative, GLinearization, GWorkspace, Gauge, Reconstructor};
 pub use rla::{RestGeometry, Rla};
 pub use topology::Topology;

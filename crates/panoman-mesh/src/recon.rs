@@ -38,8 +38,9 @@ use faer::Mat;
 use faer::dyn_stack::MemBuffer;
 use rayon::prelude::*;
 
+mod hessian;
 mod linear;
-pub use linear::GLinearization;
+pub use linear::{GDerivative, GLinearization};
 
 /// Clamp ε of the triangle height: `h ≥ sqrt(ε)·ℓ01` (handles blended lengths that violate the
 /// triangle inequality, docs/design/rla-and-g.md §3.6).
@@ -89,6 +90,10 @@ pub struct GStats {
     /// Whether the frame solve met its tolerance (false: it stopped at the iteration cap or
     /// when the line search found no decrease, with the best iterate).
     pub frame_converged: bool,
+    /// Newton steps kept ([`GWorkspace::newton_steps`]).
+    pub newton_steps: usize,
+    /// `‖∇E_F‖` at the returned frames (computed only with Newton steps; else 0).
+    pub frame_gradient: f64,
     /// Target lengths raised to the floor `ℓ_r·MIN_RELATIVE_LENGTH` (RL < −1 + floor), by
     /// [`Reconstructor::reconstruct_rla`].
     pub clamped_lengths: usize,
@@ -152,6 +157,13 @@ pub struct GWorkspace {
     step_scratch: MemBuffer,
     vrhs: Mat<f64>,
     v_scratch: MemBuffer,
+    /// Newton steps after the frame solve's Gauss–Newton iteration (0: none, the default):
+    /// each solves `H ω = −∇E_F` with the full Hessian (recon/hessian.rs) and is kept while it
+    /// lowers `‖∇E_F‖`, so that the frames reach the minimiser to rounding (for derivatives
+    /// that finite differences must confirm, [`GDerivative::Exact`]).
+    pub newton_steps: usize,
+    /// The Newton polish's conjugate-gradient buffers (allocated on first use).
+    newton: Option<hessian::Pcg>,
     /// Statistics of the last call.
     pub stats: GStats,
 }
@@ -367,6 +379,80 @@ impl Reconstructor {
         Ok(Gauge { frames, positions })
     }
 
+    /// Adds to `grad` (#V) the gradient with respect to the vertices of `mesh` of `⟨u, x⟩`,
+    /// where `x` (#V) is a `g` output placed by [`Reconstructor::gauge_from`]`(mesh)`, through
+    /// that gauge alone: per component, a change of the gauge face's frame by `exp([θ]×)` and
+    /// of the gauge vertex by `δp` moves the component rigidly, `δx_v = θ × (x_v − p) + δp`, so
+    /// `p̄ = Σ_v u_v` and `θ̄ = Σ_v (x_v − p) × u_v`; `θ̄` reaches the gauge face's three vertices
+    /// through the derivative of [`triangle_frame`] (central differences of that closed form,
+    /// step 10⁻⁶ of the face's first edge; truncation ~10⁻¹² relative).
+    ///
+    /// # Errors
+    /// [`MeshError::Mismatch`] on size mismatches.
+    pub fn gauge_gradient_add(
+        &self,
+        mesh: &[V3],
+        x: &[V3],
+        u: &[V3],
+        grad: &mut [V3],
+    ) -> Result<()> {
+        let topo = &self.topo;
+        let nv = topo.n_vertices;
+        if mesh.len() != nv || x.len() != nv || u.len() != nv || grad.len() != nv {
+            return Err(MeshError::Mismatch(format!(
+                "gauge gradient: {} / {} / {} / {} vertices for a topology of {nv}",
+                mesh.len(),
+                x.len(),
+                u.len(),
+                grad.len()
+            )));
+        }
+        for &f in &self.gauge_faces {
+            let tri = topo.faces[f as usize];
+            let comp = topo.vertex_component[tri[0] as usize];
+            let p = x[tri[0] as usize];
+            let (mut pbar, mut tbar) = ([0.0; 3], [0.0; 3]);
+            for v in 0..nv {
+                if topo.vertex_component[v] != comp {
+                    continue;
+                }
+                pbar = crate::geom::add(pbar, u[v]);
+                tbar = crate::geom::add(tbar, cross(sub(x[v], p), u[v]));
+            }
+            for c in 0..3 {
+                grad[tri[0] as usize][c] += pbar[c];
+            }
+            let corners = tri.map(|v| mesh[v as usize]);
+            let r = triangle_frame(corners[0], corners[1], corners[2]);
+            let h = 1e-6 * crate::geom::norm(sub(corners[1], corners[0]));
+            for k in 0..3 {
+                for d in 0..3 {
+                    let eval = |s: f64| {
+                        let mut q = corners;
+                        q[k][d] += s;
+                        triangle_frame(q[0], q[1], q[2])
+                    };
+                    let (rp, rm) = (eval(h), eval(-h));
+                    // θ = vee(δR Rᵀ) per unit move of corner k's coordinate d.
+                    let mut dr = [[0.0; 3]; 3];
+                    for (a, row) in dr.iter_mut().enumerate() {
+                        for (b, v) in row.iter_mut().enumerate() {
+                            *v = (rp[a][b] - rm[a][b]) / (2.0 * h);
+                        }
+                    }
+                    let w = matmul(&dr, &transpose(&r));
+                    let theta = [
+                        0.5 * (w[2][1] - w[1][2]),
+                        0.5 * (w[0][2] - w[2][0]),
+                        0.5 * (w[1][0] - w[0][1]),
+                    ];
+                    grad[tri[k] as usize][d] += crate::geom::dot(theta, tbar);
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// The identity gauge: gauge faces' frames = I, gauge vertices at the origin.
     pub fn identity_gauge(&self) -> Gauge {
         Gauge {
@@ -394,6 +480,8 @@ impl Reconstructor {
             step_scratch: self.dual_factor.make_scratch(3),
             vrhs: Mat::zeros(nvr, 3),
             v_scratch: self.vert_factor.make_scratch(3),
+            newton_steps: 0,
+            newton: None,
             stats: GStats::default(),
         }
     }
@@ -626,6 +714,125 @@ impl Reconstructor {
         chunk_sums.iter().sum()
     }
 
+    /// `∇E_F / 4` at `ws.frames` into `ws.step` (reduced faces × 3), with `s_e` in `ws.s_edge`.
+    fn gradient_into(&self, ws: &mut GWorkspace) {
+        let topo = &self.topo;
+        // s_e per interior edge.
+        let (frames, conn) = (&ws.frames, &ws.conn);
+        ws.s_edge
+            .par_chunks_mut(FACE_CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                for (off, s) in chunk.iter_mut().enumerate() {
+                    let e = c * FACE_CHUNK + off;
+                    let [fl, fr] = topo.edge_faces[e];
+                    *s = if fr == NONE {
+                        [0.0; 3]
+                    } else {
+                        let a = matmul(&frames[fl as usize], &conn[e]);
+                        let m = matmul(&frames[fr as usize], &transpose(&a));
+                        [
+                            0.5 * (m[2][1] - m[1][2]),
+                            0.5 * (m[0][2] - m[2][0]),
+                            0.5 * (m[1][0] - m[0][1]),
+                        ]
+                    };
+                }
+            });
+        // ∇E_F/4 per non-gauge face, then ω = −L⁻¹(∇E_F/4).
+        for f in 0..topo.n_faces() {
+            let rf = self.face_red[f];
+            if rf == NONE {
+                continue;
+            }
+            let mut g = [0.0; 3];
+            for &(_, edge) in topo.dual_neighbors_of(f) {
+                let s = ws.s_edge[edge as usize];
+                let sign = if topo.edge_faces[edge as usize][0] as usize == f {
+                    -1.0
+                } else {
+                    1.0
+                };
+                for c in 0..3 {
+                    g[c] += sign * s[c];
+                }
+            }
+            for c in 0..3 {
+                ws.step[(rf as usize, c)] = g[c];
+            }
+        }
+    }
+
+    /// Applies `R_f ← exp([−t·step_f]×) R_f` to `ws.frames` from `ws.frames_prev`.
+    fn rotate_frames(&self, ws: &mut GWorkspace, t: f64) {
+        let (step, prev) = (&ws.step, &ws.frames_prev);
+        ws.frames
+            .par_chunks_mut(FACE_CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                for (off, r) in chunk.iter_mut().enumerate() {
+                    let f = c * FACE_CHUNK + off;
+                    let rf = self.face_red[f];
+                    if rf == NONE {
+                        continue;
+                    }
+                    let w = [0, 1, 2].map(|k| -t * step[(rf as usize, k)]);
+                    let a = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+                    *r = if a > 0.0 {
+                        matmul(&crate::rotation::axis_angle(w, a), &prev[f])
+                    } else {
+                        prev[f]
+                    };
+                }
+            });
+    }
+
+    /// `‖∇E_F‖` from `ws.step` holding `∇E_F / 4`.
+    fn gradient_norm(ws: &GWorkspace) -> f64 {
+        4.0 * (0..3)
+            .map(|c| ws.step.col(c).iter().map(|x| x * x).sum::<f64>())
+            .sum::<f64>()
+            .sqrt()
+    }
+
+    /// The Newton polish ([`GWorkspace::newton_steps`]): steps `ω = −H⁻¹ ∇E_F`, each kept
+    /// only if it lowers `‖∇E_F‖`.
+    fn newton_polish(&self, ws: &mut GWorkspace, stats: &mut GStats) {
+        self.gradient_into(ws);
+        let mut gnorm = Self::gradient_norm(ws);
+        let mut pcg = ws
+            .newton
+            .take()
+            .unwrap_or_else(|| hessian::Pcg::new(self.n_face_red.max(1)));
+        for _ in 0..ws.newton_steps {
+            if gnorm == 0.0 {
+                break;
+            }
+            let edges = hessian::edge_curvatures(&self.topo, &ws.frames, &ws.conn);
+            // H ω = −4 (∇E_F/4); `rotate_frames` applies −t·step, so solve for −ω.
+            ws.step *= faer::Scale(4.0);
+            if pcg
+                .solve(self, &edges, &mut ws.step, &mut ws.step_scratch)
+                .is_err()
+            {
+                break;
+            }
+            ws.frames_prev.copy_from_slice(&ws.frames);
+            self.rotate_frames(ws, 1.0);
+            self.gradient_into(ws);
+            let g_new = Self::gradient_norm(ws);
+            if g_new.partial_cmp(&gnorm) != Some(std::cmp::Ordering::Less) {
+                ws.frames.copy_from_slice(&ws.frames_prev);
+                self.gradient_into(ws);
+                break;
+            }
+            gnorm = g_new;
+            stats.newton_steps += 1;
+        }
+        stats.frame_gradient = gnorm;
+        ws.newton = Some(pcg);
+    }
+
     /// Gauss–Newton on SO(3) for the frames in `ws.frames` (module docs, step 3): the
     /// constant Hessian `4 (L ⊗ I₃)` through the dual-graph factor, backtracking on E_F.
     fn frame_solve(&self, ws: &mut GWorkspace) -> Result<GStats> {
@@ -642,76 +849,14 @@ impl Reconstructor {
         }
         stats.frame_converged = false;
         for _ in 0..self.max_frame_iterations {
-            // s_e per interior edge.
-            let (frames, conn) = (&ws.frames, &ws.conn);
-            ws.s_edge
-                .par_chunks_mut(FACE_CHUNK)
-                .enumerate()
-                .for_each(|(c, chunk)| {
-                    for (off, s) in chunk.iter_mut().enumerate() {
-                        let e = c * FACE_CHUNK + off;
-                        let [fl, fr] = topo.edge_faces[e];
-                        *s = if fr == NONE {
-                            [0.0; 3]
-                        } else {
-                            let a = matmul(&frames[fl as usize], &conn[e]);
-                            let m = matmul(&frames[fr as usize], &transpose(&a));
-                            [
-                                0.5 * (m[2][1] - m[1][2]),
-                                0.5 * (m[0][2] - m[2][0]),
-                                0.5 * (m[1][0] - m[0][1]),
-                            ]
-                        };
-                    }
-                });
-            // ∇E_F/4 per non-gauge face, then ω = −L⁻¹(∇E_F/4).
-            for f in 0..topo.n_faces() {
-                let rf = self.face_red[f];
-                if rf == NONE {
-                    continue;
-                }
-                let mut g = [0.0; 3];
-                for &(_, edge) in topo.dual_neighbors_of(f) {
-                    let s = ws.s_edge[edge as usize];
-                    let sign = if topo.edge_faces[edge as usize][0] as usize == f {
-                        -1.0
-                    } else {
-                        1.0
-                    };
-                    for c in 0..3 {
-                        g[c] += sign * s[c];
-                    }
-                }
-                for c in 0..3 {
-                    ws.step[(rf as usize, c)] = g[c];
-                }
-            }
+            self.gradient_into(ws);
             self.dual_factor
                 .solve_in_place(ws.step.as_mut(), &mut ws.step_scratch);
             ws.frames_prev.copy_from_slice(&ws.frames);
             let mut accepted = false;
             let mut t = 1.0;
             for _ in 0..8 {
-                let (step, prev) = (&ws.step, &ws.frames_prev);
-                ws.frames
-                    .par_chunks_mut(FACE_CHUNK)
-                    .enumerate()
-                    .for_each(|(c, chunk)| {
-                        for (off, r) in chunk.iter_mut().enumerate() {
-                            let f = c * FACE_CHUNK + off;
-                            let rf = self.face_red[f];
-                            if rf == NONE {
-                                continue;
-                            }
-                            let w = [0, 1, 2].map(|k| -t * step[(rf as usize, k)]);
-                            let a = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
-                            *r = if a > 0.0 {
-                                matmul(&crate::rotation::axis_angle(w, a), &prev[f])
-                            } else {
-                                prev[f]
-                            };
-                        }
-                    });
+                self.rotate_frames(ws, t);
                 let e_new = self.frame_energy(&ws.frames, &ws.conn, &mut ws.chunk_sums);
                 if e_new.is_finite() && e_new < e {
                     stats.frame_iterations += 1;
@@ -739,6 +884,10 @@ impl Reconstructor {
             return Err(MeshError::Numerical(
                 "frame solve diverged (non-finite energy)".into(),
             ));
+        }
+        if ws.newton_steps > 0 {
+            self.newton_polish(ws, &mut stats);
+            e = self.frame_energy(&ws.frames, &ws.conn, &mut ws.chunk_sums);
         }
         stats.frame_energy = e;
         Ok(stats)

@@ -236,6 +236,37 @@ pub fn check_positions(topo: &Topology, positions: &[V3], what: &str) -> Result<
     Ok(())
 }
 
+/// Adds to `out` (#V) the gradient with respect to the vertices `x` of
+/// `Σ_e l̄_e ℓ_e(x) + φ̄_e φ_e(x)` (`dl`, `dphi`: #E; `dphi` ignored on boundary edges), i.e. the
+/// transpose of the rest geometry's derivative ([`length_gradient`], [`dihedral_gradient`]).
+///
+/// # Panics
+/// On size mismatches.
+pub fn geometry_gradient_add(topo: &Topology, x: &[V3], dl: &[f64], dphi: &[f64], out: &mut [V3]) {
+    assert!(dl.len() == topo.n_edges() && dphi.len() == topo.n_edges());
+    assert!(x.len() == topo.n_vertices && out.len() == topo.n_vertices);
+    let acc = |out: &mut [V3], v: u32, g: V3, s: f64| {
+        for c in 0..3 {
+            out[v as usize][c] += s * g[c];
+        }
+    };
+    for (e, &[i, j]) in topo.edges.iter().enumerate() {
+        let (xi, xj) = (x[i as usize], x[j as usize]);
+        if dl[e] != 0.0 {
+            let [gi, gj] = length_gradient(xi, xj);
+            acc(out, i, gi, dl[e]);
+            acc(out, j, gj, dl[e]);
+        }
+        let [k, l] = topo.edge_opposite[e];
+        if l != NONE && dphi[e] != 0.0 {
+            let g = dihedral_gradient(xi, xj, x[k as usize], x[l as usize]);
+            for (v, gv) in [i, j, k, l].into_iter().zip(g) {
+                acc(out, v, gv, dphi[e]);
+            }
+        }
+    }
+}
+
 /// Gradient of ℓ = |x_j − x_i| with respect to (x_i, x_j): `(−ê, ê)`.
 #[inline]
 pub fn length_gradient(xi: V3, xj: V3) -> [V3; 2] {

@@ -135,6 +135,29 @@ pub fn from_rotation_vector(v: V3) -> M3 {
     if a == 0.0 { IDENTITY } else { axis_angle(v, a) }
 }
 
+/// The left Jacobian of SO(3) at the rotation vector `v` (θ = |v|):
+/// `exp([v + δ]×) ≈ exp([J_l(v) δ]×) exp([v]×)`, with
+/// `J_l = I + (1 − cos θ)/θ² [v]× + (θ − sin θ)/θ³ [v]×²` (series below θ = 10⁻⁴).
+pub fn left_jacobian(v: V3) -> M3 {
+    let th2 = dot(v, v);
+    let th = th2.sqrt();
+    let (a, b) = if th < 1e-4 {
+        (0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0)
+    } else {
+        let (s, c) = th.sin_cos();
+        ((1.0 - c) / th2, (th - s) / (th2 * th))
+    };
+    let k = [[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]];
+    let mut out = IDENTITY;
+    for i in 0..3 {
+        for j in 0..3 {
+            let k2: f64 = (0..3).map(|m| k[i][m] * k[m][j]).sum();
+            out[i][j] += a * k[i][j] + b * k2;
+        }
+    }
+    out
+}
+
 /// The rotation vector (axis·angle, radians, `θ ∈ [0, π]`) of a rotation matrix: the SO(3)
 /// logarithm, `θ = atan2(|w|/2, (tr R − 1)/2)` with `w = vee(R − Rᵀ)`, `v = θ·w/|w|`; a series
 /// near 0, and beyond π/2 the axis from the symmetric part (accurate up to π).
@@ -363,6 +386,33 @@ mod tests {
                 let err_flip = (0..3).map(|k| (v[k] + want[k]).abs()).fold(0.0, f64::max);
                 let ok = err < 1e-9 || (theta > 3.1 && err_flip < 1e-6);
                 assert!(ok, "axis {a:?} θ {theta}: got {v:?}, want {want:?}");
+            }
+        }
+    }
+
+    /// `J_l(v) δ` against `vee(log(exp([v+hδ]) exp([v−hδ])ᵀ))/2h` (central differences, error
+    /// O(h²) ≈ 1e-8 here), on both sides of the series switch.
+    #[test]
+    fn left_jacobian_matches_finite_differences() {
+        let d = [0.3, -0.5, 0.8];
+        for v in [
+            [0.0; 3],
+            [2e-5, -1e-5, 3e-5],
+            [0.4, 0.1, -0.7],
+            [1.2, -2.0, 0.9],
+        ] {
+            let h = 1e-4;
+            let p = from_rotation_vector([0, 1, 2].map(|k| v[k] + h * d[k]));
+            let m = from_rotation_vector([0, 1, 2].map(|k| v[k] - h * d[k]));
+            let mt = [0, 1, 2].map(|i| [0, 1, 2].map(|j| m[j][i]));
+            let w = rotation_vector(&crate::geom::matmul(&p, &mt));
+            let jd = crate::geom::matvec(&left_jacobian(v), d);
+            for k in 0..3 {
+                assert!(
+                    (w[k] / (2.0 * h) - jd[k]).abs() < 1e-7,
+                    "v {v:?}: FD {:?} vs J_l δ {jd:?}",
+                    w.map(|x| x / (2.0 * h))
+                );
             }
         }
     }

@@ -26,7 +26,22 @@
 //! The transpose applies the same steps backwards (`L`, `L_v` symmetric), so a gradient
 //! `J_gᵀ u` costs the same two back-substitutions (3 columns each) as a product `J_g v`.
 //! Cost per product: O(#E) plus two sparse triangular solves; no g solve.
+//!
+//! **Exact derivative** ([`GDerivative::Exact`]). Step 2 uses the Gauss–Newton model, exact
+//! only at consistent data. The exact one differentiates the optimality condition
+//! `∇_ω E_F = 0` (implicit function theorem) with the full Hessian. Per interior edge, with
+//! `M_e = R_fL Q_e R_fRᵀ`, `m_e = vee(skew(M_e))`, `K_e = tr(M_e) I − sym(M_e)` and
+//! `a = ω_fL`, `b = ω_fR`, `w = a − b + ζ_e`, the edge's energy is to second order
+//! `E_e ≈ E_e⁰ + 4 w·m_e + wᵀ K_e w + 2 m_e·(a×ζ_e + a×b − b×ζ_e)`, so
+//! `H_aa = H_bb = 2K_e`, `H_ab = −2K_e − 2[m_e]×`, and the mixed block sends `ζ_e` to
+//! `∓C_e ζ_e` on (fL, fR) with `C_e = 2K_e − 2[m_e]×`. The frame increments solve
+//! `H ω = −Σ_e (C_e ζ_e on fL, −C_e ζ_e on fR)` by conjugate gradients preconditioned with
+//! `4 (L ⊗ I₃)` (the Gauss–Newton matrix, already factored; `H = 4 (L ⊗ I₃)` at consistency,
+//! `K_e = 2I`, `m_e = 0`), and the transpose with `Hᵀ = H`, `C_eᵀ = 2K_e + 2[m_e]×`.
+//! Exact up to the frame solve's convergence; a few preconditioned iterations per product on
+//! nearly consistent data.
 
+use super::hessian::{EdgeCurvature, Pcg, edge_curvatures};
 use super::{FACE_CHUNK, GWorkspace, HEIGHT_EPS, Reconstructor, diamond_edges, diamond_map};
 use crate::error::{MeshError, Result};
 use crate::geom::{M3, V3, cross, matmul, matvec, matvec_t, sub, transpose};
@@ -37,6 +52,25 @@ use rayon::prelude::*;
 
 /// Relative finite-difference step of the diamond map's local Jacobian `G_e`.
 const DIAMOND_STEP: f64 = 1e-6;
+
+/// Which derivative of `g` a [`GLinearization`] applies (module docs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum GDerivative {
+    /// The Gauss–Newton derivative: the frame step solves `L ω = −D ζ` (one back-substitution;
+    /// exact at consistent targets only).
+    #[default]
+    GaussNewton,
+    /// The derivative of the frame solve's minimiser (full Hessian, preconditioned conjugate
+    /// gradients): what finite differences of `g` see.
+    Exact,
+}
+
+/// The exact mode's data: per-edge curvature and the conjugate gradients' buffers.
+struct Exact {
+    edges: Vec<EdgeCurvature>,
+    pcg: Pcg,
+    iterations: usize,
+}
 
 /// `g` linearized at its last solution (module docs): `J_g v` ([`GLinearization::apply`])
 /// and `J_gᵀ u` ([`GLinearization::apply_transpose`]) for directions `v = (δℓ*, δφ*)`
@@ -57,6 +91,7 @@ pub struct GLinearization {
     dual_scratch: MemBuffer,
     vert: Mat<f64>,
     vert_scratch: MemBuffer,
+    exact: Option<Exact>,
 }
 
 impl std::fmt::Debug for GLinearization {
@@ -64,6 +99,7 @@ impl std::fmt::Debug for GLinearization {
         f.debug_struct("GLinearization")
             .field("faces", &self.frames.len())
             .field("edges", &self.conn_edges.len())
+            .field("exact", &self.exact.is_some())
             .finish()
     }
 }
@@ -100,7 +136,8 @@ fn third_corner_jac(l01: f64, l12: f64, l20: f64) -> [[f64; 3]; 3] {
 impl Reconstructor {
     /// Linearizes `g` at the solution of the last [`Reconstructor::reconstruct`] /
     /// [`Reconstructor::reconstruct_rla`] call on `ws`, whose target lengths ℓ* and angles φ*
-    /// (#E each) are passed again (for `reconstruct_rla`: `ws.lengths`, `ws.angles`).
+    /// (#E each) are passed again (for `reconstruct_rla`: `ws.lengths`, `ws.angles`), with the
+    /// Gauss–Newton derivative ([`Reconstructor::linearize_with`]).
     ///
     /// # Errors
     /// [`MeshError::Mismatch`] on a size mismatch.
@@ -109,6 +146,22 @@ impl Reconstructor {
         ws: &GWorkspace,
         lengths: &[f64],
         angles: &[f64],
+    ) -> Result<GLinearization> {
+        self.linearize_with(ws, lengths, angles, GDerivative::GaussNewton)
+    }
+
+    /// [`Reconstructor::linearize`] with the derivative chosen: [`GDerivative::Exact`] is the
+    /// derivative of g's minimiser (module docs), for gradients that finite differences of g
+    /// must confirm.
+    ///
+    /// # Errors
+    /// [`MeshError::Mismatch`] on a size mismatch.
+    pub fn linearize_with(
+        &self,
+        ws: &GWorkspace,
+        lengths: &[f64],
+        angles: &[f64],
+        derivative: GDerivative,
     ) -> Result<GLinearization> {
         let topo = &self.topo;
         let ne = topo.n_edges();
@@ -178,7 +231,16 @@ impl Reconstructor {
             .unzip();
         let nfr = self.n_face_red.max(1);
         let nvr = self.n_vert_red.max(1);
+        let exact = (derivative == GDerivative::Exact).then(|| {
+            let edges = edge_curvatures(topo, frames, &ws.conn);
+            Exact {
+                edges,
+                pcg: Pcg::new(nfr),
+                iterations: 0,
+            }
+        });
         Ok(GLinearization {
+            exact,
             frames: ws.frames.clone(),
             local: ws.local.clone(),
             local_jac,
@@ -235,7 +297,14 @@ impl GLinearization {
                 x[i] = dl[ids[i] as usize];
             }
             x[5] = dphi[e];
-            let zeta: V3 = [0, 1, 2].map(|r| (0..6).map(|i| w[r][i] * x[i]).sum());
+            let mut zeta: V3 = [0, 1, 2].map(|r| (0..6).map(|i| w[r][i] * x[i]).sum());
+            if let Some(ex) = &self.exact {
+                // C_e ζ_e = 2 K_e ζ_e − 2 m_e × ζ_e.
+                let EdgeCurvature { k, m } = ex.edges[e];
+                let kz = matvec(&k, zeta);
+                let mz = cross(m, zeta);
+                zeta = [0, 1, 2].map(|c| 2.0 * kz[c] - 2.0 * mz[c]);
+            }
             for (f, s) in [(fl, -1.0), (fr, 1.0)] {
                 let rf = rec.face_red[f as usize];
                 if rf != NONE {
@@ -245,10 +314,7 @@ impl GLinearization {
                 }
             }
         }
-        if rec.n_face_red > 0 {
-            rec.dual_factor
-                .solve_in_place(self.dual.as_mut(), &mut self.dual_scratch);
-        }
+        self.solve_frames(rec)?;
         // 3–4. δd per half-edge, assembled like g's right-hand side.
         self.vert.fill(0.0);
         for (f, tri) in topo.faces.iter().enumerate() {
@@ -369,11 +435,9 @@ impl GLinearization {
                 dl[fe[k] as usize] += (0..3).map(|rr| jq[rr][k] * dq[rr]).sum::<f64>();
             }
         }
-        // 2ᵀ. b = L⁻¹ ω̄; ζ̄_e = b_fR − b_fL; 1ᵀ. (δℓ̄_5, δφ̄_e) += W_eᵀ ζ̄_e.
-        if rec.n_face_red > 0 {
-            rec.dual_factor
-                .solve_in_place(self.dual.as_mut(), &mut self.dual_scratch);
-        }
+        // 2ᵀ. b = L⁻¹ ω̄ (exact: H⁻¹ ω̄); ζ̄_e = b_fR − b_fL (exact: C_eᵀ (b_fR − b_fL));
+        // 1ᵀ. (δℓ̄_5, δφ̄_e) += W_eᵀ ζ̄_e.
+        self.solve_frames(rec)?;
         let b_of = |f: u32, m: &Mat<f64>| -> V3 {
             let rf = rec.face_red[f as usize];
             if rf == NONE {
@@ -387,7 +451,13 @@ impl GLinearization {
             if fr == NONE {
                 continue;
             }
-            let zb = sub(b_of(fr, &self.dual), b_of(fl, &self.dual));
+            let mut zb = sub(b_of(fr, &self.dual), b_of(fl, &self.dual));
+            if let Some(ex) = &self.exact {
+                let EdgeCurvature { k, m } = ex.edges[e];
+                let kz = matvec(&k, zb);
+                let mz = cross(m, zb);
+                zb = [0, 1, 2].map(|c| 2.0 * kz[c] + 2.0 * mz[c]);
+            }
             let w = &self.conn_jac[e];
             let ids = self.conn_edges[e];
             for i in 0..6 {
@@ -399,6 +469,30 @@ impl GLinearization {
                 }
             }
         }
+        Ok(())
+    }
+}
+
+impl GLinearization {
+    /// Conjugate-gradient iterations of the last exact frame solve (0 in Gauss–Newton mode).
+    pub fn last_iterations(&self) -> usize {
+        self.exact.as_ref().map_or(0, |e| e.iterations)
+    }
+
+    /// The frame step in place on `dual` (#reduced faces × 3): `L⁻¹ ·` (Gauss–Newton) or
+    /// `H⁻¹ ·` by conjugate gradients preconditioned with `(4L)⁻¹` (exact).
+    fn solve_frames(&mut self, rec: &Reconstructor) -> Result<()> {
+        if rec.n_face_red == 0 {
+            return Ok(());
+        }
+        let Some(ex) = self.exact.as_mut() else {
+            rec.dual_factor
+                .solve_in_place(self.dual.as_mut(), &mut self.dual_scratch);
+            return Ok(());
+        };
+        ex.iterations = ex
+            .pcg
+            .solve(rec, &ex.edges, &mut self.dual, &mut self.dual_scratch)?;
         Ok(())
     }
 }
