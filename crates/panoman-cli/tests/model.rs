@@ -498,3 +498,107 @@ fn encoder_linearization_matches_finite_differences() {
     let e = ev.vertex_jacobian_product(&p, false, &unknown).unwrap_err();
     assert!(e.to_string().contains("tail_l"), "{e}");
 }
+
+/// `Evaluator::pose_vjp` against central differences of `Evaluator::pose_precise`, per
+/// parameter group: `⟨vjp(u), d⟩` vs `(⟨u, pose(p + h d)⟩ − ⟨u, pose(p − h d)⟩) / 2h`. Without
+/// the correction every step is exact up to g's converged frames and the FD's O(h²)
+/// truncation (h = 1e-4 in parameter units; ~1e-7 relative), so 1e-5 is the bound; with it,
+/// the MLP runs in f32 (its rounding over 2h, ~1e-4 |R| / |FD| here) and is piecewise linear,
+/// so the bound is 0.1 % (measured ~4e-6).
+#[test]
+fn pose_gradient_matches_finite_differences() {
+    let (_, model, mut ev, mesh, rest) = encoder_fixture();
+    let mut p = ev.encode(&mesh, Some(&rest), true).unwrap();
+    p.rotation = [0.3, -0.2, 0.5];
+    p.translation = [0.1, 0.2, -0.3];
+    let u: Vec<[f64; 3]> = (0..mesh.len())
+        .map(|v| {
+            let t = v as f64;
+            [(0.3 * t).sin(), (0.7 * t).cos(), (1.1 * t).sin()]
+        })
+        .collect();
+    let mut zero = p.clone();
+    zero.alpha.iter_mut().for_each(|a| *a = 0.0);
+    for b in zero.beta.values_mut() {
+        b.iter_mut().for_each(|x| *x = 0.0);
+    }
+    zero.rotation = [0.0; 3];
+    zero.translation = [0.0; 3];
+    let wave =
+        |n: usize, k: f64| -> Vec<f64> { (0..n).map(|i| (1.3 * i as f64 + k).sin()).collect() };
+    let mut groups: Vec<(&str, Params)> = Vec::new();
+    let mut d = zero.clone();
+    d.alpha = wave(p.alpha.len(), 0.2);
+    groups.push(("alpha", d));
+    let mut d = zero.clone();
+    for (b, blk) in model.blocks.iter().enumerate() {
+        d.beta
+            .insert(blk.name.clone(), wave(blk.n_components(), 0.7 * b as f64));
+    }
+    groups.push(("beta", d));
+    let mut d = zero.clone();
+    d.rotation = [0.4, -0.9, 0.2];
+    groups.push(("rotation", d));
+    let mut d = zero.clone();
+    d.translation = [0.5, 0.3, -0.8];
+    groups.push(("translation", d));
+    let axpy = |s: f64, d: &Params| {
+        let mut q = p.clone();
+        for (a, x) in q.alpha.iter_mut().zip(&d.alpha) {
+            *a += s * x;
+        }
+        for (name, dv) in &d.beta {
+            for (b, x) in q.beta.get_mut(name).unwrap().iter_mut().zip(dv) {
+                *b += s * x;
+            }
+        }
+        for k in 0..3 {
+            q.rotation[k] += s * d.rotation[k];
+            q.translation[k] += s * d.translation[k];
+        }
+        q
+    };
+    let inner = |x: &[[f64; 3]]| -> f64 {
+        x.iter()
+            .zip(&u)
+            .map(|(a, b)| a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+            .sum()
+    };
+    let dot_params = |g: &Params, d: &Params| -> f64 {
+        let a: f64 = g.alpha.iter().zip(&d.alpha).map(|(x, y)| x * y).sum();
+        let b: f64 = d
+            .beta
+            .iter()
+            .map(|(n, dv)| g.beta[n].iter().zip(dv).map(|(x, y)| x * y).sum::<f64>())
+            .sum();
+        let r: f64 = (0..3)
+            .map(|k| g.rotation[k] * d.rotation[k] + g.translation[k] * d.translation[k])
+            .sum();
+        a + b + r
+    };
+    for corr in [false, true] {
+        let g = ev.pose_vjp(&p, corr, &u).unwrap();
+        let (h, tol) = if corr { (1e-3, 1e-3) } else { (1e-4, 1e-5) };
+        for (name, d) in &groups {
+            let fp = inner(&ev.pose_precise(&axpy(h, d), corr).unwrap());
+            let fm = inner(&ev.pose_precise(&axpy(-h, d), corr).unwrap());
+            let fd = (fp - fm) / (2.0 * h);
+            let an = dot_params(&g, d);
+            eprintln!("correction {corr} {name}: FD {fd:.9e} analytic {an:.9e}");
+            assert!(
+                fd.abs() > 1e-3,
+                "{name}: the direction has no effect ({fd})"
+            );
+            assert!(
+                (fd - an).abs() <= tol * fd.abs(),
+                "correction {corr}, {name}: FD {fd} vs ⟨vjp, d⟩ {an}"
+            );
+        }
+    }
+    // A covector of the wrong length or with a NaN is an error, not a panic.
+    assert!(ev.pose_vjp(&p, true, &u[1..]).is_err());
+    let mut bad = u.clone();
+    bad[5][1] = f64::NAN;
+    let e = ev.pose_vjp(&p, true, &bad).unwrap_err();
+    assert!(e.to_string().contains("vertex 5"), "{e}");
+}

@@ -314,6 +314,39 @@ impl Model {
             .map_err(Error::from)
     }
 
+    /// [`Model::pose`] with `g`'s frame solve polished to its minimiser by Newton steps: the
+    /// function [`Model::pose_vjp`] differentiates (it differs from `pose` by the frame solve's
+    /// stopping tolerance). What a differentiable layer (the Python `panoman.torch`) calls.
+    ///
+    /// # Errors
+    /// As [`Model::pose`].
+    pub fn pose_precise(&self, params: &Params, correction: Correction) -> Result<Vec<V3>> {
+        params
+            .validate(self.inner())
+            .map_err(|w| Error::Invalid(format!("parameters: {w}")))?;
+        self.with_evaluator(|ev| ev.pose_precise(params, correction == Correction::Apply))
+            .map_err(Error::from)
+    }
+
+    /// The vector–Jacobian product of [`Model::pose_precise`]: the gradient of `⟨grad, pose⟩`
+    /// with respect to every parameter (α, each β block, `rotation`, `translation`) for a
+    /// vertex covector `grad` (`(V, 3)`, e.g. ∂loss/∂vertices). Exact: g by the implicit
+    /// derivative of its frame solve (docs/design/rla-and-g.md §3.8), α through the rest
+    /// shape and g's gauge, the correction MLP within its ReLU pattern. Costs about one
+    /// `pose_precise` plus a few back-substitutions.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] for a `grad` of the wrong length or with non-finite values, or
+    /// parameters that do not fit the model; numerical failures of g.
+    pub fn pose_vjp(&self, params: &Params, correction: Correction, grad: &[V3]) -> Result<Params> {
+        params
+            .validate(self.inner())
+            .map_err(|w| Error::Invalid(format!("parameters: {w}")))?;
+        self.check_vertices("vertex gradient", grad)?;
+        self.with_evaluator(|ev| ev.pose_vjp(params, correction == Correction::Apply, grad))
+            .map_err(Error::from)
+    }
+
     /// Encodes a registered mesh (the model's topology, metres) into parameters, the inverse of
     /// [`Model::pose`], with the default encoder ([`Encoder::VertexError`]): see
     /// [`Model::encode_with`].

@@ -31,9 +31,9 @@ use super::{Evaluator, Params, Quantity};
 use crate::error::{ModelError, Result};
 use faer::Par;
 use panoman_mesh::align::rigid_align;
-use panoman_mesh::geom::{V3, sub};
+use panoman_mesh::geom::{V3, add, cross, matvec_t, sub};
 use panoman_mesh::rla::MIN_RELATIVE_LENGTH;
-use panoman_mesh::{GLinearization, Gauge, RestGeometry};
+use panoman_mesh::{GDerivative, GLinearization, Gauge, RestGeometry};
 
 /// Options of [`Evaluator::refine_beta`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -491,13 +491,26 @@ impl Evaluator {
         let ne = self.topo.n_edges();
         let (mut gl, mut ga) = (vec![0.0; ne], vec![0.0; ne]);
         lin.apply_transpose(&self.rec, u, &mut gl, &mut ga)?;
-        for (x, &s) in gl.iter_mut().zip(dl_drl) {
-            *x *= s;
-        }
+        self.beta_gradient(lay, dl_drl, corr, &gl, &ga, out);
+        Ok(())
+    }
+
+    /// β̄ (flat, written to `out`) from the covectors `gl`, `ga` (#E) on the target lengths and
+    /// angles: `∂ℓ*/∂RL = dl_drl`, the blocks' components, and the correction's transpose.
+    fn beta_gradient(
+        &self,
+        lay: &Layout,
+        dl_drl: &[f64],
+        corr: Option<&CorrectionLin>,
+        gl: &[f64],
+        ga: &[f64],
+        out: &mut [f64],
+    ) {
+        let gl: Vec<f64> = gl.iter().zip(dl_drl).map(|(x, s)| x * s).collect();
         for (b, blk) in self.model.blocks.iter().enumerate() {
             let src = match Quantity::of_block(b) {
                 Quantity::Length => &gl,
-                Quantity::Angle => &ga,
+                Quantity::Angle => ga,
             };
             for k in 0..blk.n_components() {
                 let (cols, vals) = blk.components.row(k);
@@ -509,9 +522,8 @@ impl Evaluator {
             }
         }
         if let Some(c) = corr {
-            c.apply_t(&gl, &ga, out);
+            c.apply_t(&gl, ga, out);
         }
-        Ok(())
     }
 
     /// The residual `r = T x̂ − x(β)` at `pt` (flat, m = 3 #V).
@@ -755,6 +767,110 @@ impl Evaluator {
         let mut p = self.encode(mesh, rest, correction)?;
         let rep = self.refine_beta(mesh, &mut p, correction, opts)?;
         Ok((p, rep))
+    }
+}
+
+/// Newton steps of g's frame solve in [`Evaluator::pose_precise`] and
+/// [`Evaluator::pose_vjp`] (each kept only while it lowers the frame gradient; two or three
+/// reach rounding from the Gauss–Newton result).
+const NEWTON_STEPS: usize = 4;
+
+impl Evaluator {
+    /// [`Evaluator::pose`] with g's frames polished to the frame solve's minimiser by Newton
+    /// steps ([`panoman_mesh::GWorkspace::newton_steps`]): the function whose gradient
+    /// [`Evaluator::pose_vjp`] is. It differs from `pose` by the Gauss–Newton tolerance.
+    ///
+    /// # Errors
+    /// As [`Evaluator::pose`].
+    pub fn pose_precise(&mut self, params: &Params, correction: bool) -> Result<Vec<V3>> {
+        self.ws.newton_steps = NEWTON_STEPS;
+        let out = self.pose(params, correction);
+        self.ws.newton_steps = 0;
+        out
+    }
+
+    /// The gradient of `⟨u, B_P(α, β, rotation, translation)⟩` ([`Evaluator::pose_precise`]) with
+    /// respect to the parameters, for a vertex covector `u` (#V × 3): the vector–Jacobian
+    /// product of reverse-mode differentiation. β through the blocks, the length floor and the
+    /// correction MLP (exact within its ReLU pattern); α through the rest shape's edge lengths
+    /// and dihedral angles and g's gauge (measured on the rest shape); g by its exact
+    /// derivative ([`panoman_mesh::GDerivative::Exact`]); `rotation` through the left Jacobian
+    /// of SO(3). Costs one precise g solve and one exact transpose product.
+    ///
+    /// # Errors
+    /// A `u` of the wrong length or non-finite, parameters that do not fit, a failing g solve
+    /// or derivative.
+    pub fn pose_vjp(&mut self, params: &Params, correction: bool, u: &[V3]) -> Result<Params> {
+        self.check_vertex_count("covector", u.len())?;
+        if let Some(v) = u.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(ModelError::Invalid(format!(
+                "covector of vertex {v} is not finite"
+            )));
+        }
+        let model = self.model.clone();
+        let correction = correction && model.correction.is_some();
+        let rest = model.rest_shape(&params.alpha);
+        let rg = RestGeometry::new(&self.topo, &rest)?;
+        let gauge = self.rec.gauge_from(&rest)?;
+        let lay = Layout::new(&model);
+        self.ws.newton_steps = NEWTON_STEPS;
+        let pt = self.gn_point(params, correction, &rg, &gauge, &rest);
+        self.ws.newton_steps = 0;
+        let pt = pt?;
+        let mut lin =
+            self.rec
+                .linearize_with(&self.ws, &pt.lengths, &pt.angles, GDerivative::Exact)?;
+        let corr = if correction {
+            CorrectionLin::new(&model, &lay, params)
+        } else {
+            None
+        };
+        // Rigid placement: y = R x + t.
+        let r = panoman_mesh::rotation::from_rotation_vector(params.rotation);
+        let mut xbar = vec![[0.0; 3]; u.len()];
+        let (mut tbar, mut thbar) = ([0.0; 3], [0.0; 3]);
+        for ((xb, &uv), &xv) in xbar.iter_mut().zip(u).zip(&pt.x) {
+            *xb = matvec_t(&r, uv);
+            tbar = add(tbar, uv);
+            thbar = add(thbar, cross(panoman_mesh::geom::matvec(&r, xv), uv));
+        }
+        let jl = panoman_mesh::rotation::left_jacobian(params.rotation);
+        // β through g's exact transpose.
+        let ne = self.topo.n_edges();
+        let (mut gl, mut ga) = (vec![0.0; ne], vec![0.0; ne]);
+        lin.apply_transpose(&self.rec, &xbar, &mut gl, &mut ga)?;
+        let mut gb = vec![0.0; lay.len()];
+        self.beta_gradient(&lay, &pt.dl_drl, corr.as_ref(), &gl, &ga, &mut gb);
+        // α: ℓ* = ℓ_r (1 + RL) (floored), φ* = φ_r + RA, and the gauge of the rest shape.
+        let glr: Vec<f64> = gl
+            .iter()
+            .zip(pt.lengths.iter().zip(&rg.lengths))
+            .map(|(g, (l, lr))| g * l / lr)
+            .collect();
+        let mut grest = vec![[0.0; 3]; u.len()];
+        panoman_mesh::rla::geometry_gradient_add(&self.topo, &rest, &glr, &ga, &mut grest);
+        self.rec
+            .gauge_gradient_add(&rest, &pt.x, &xbar, &mut grest)?;
+        let flat: Vec<f64> = grest.iter().flatten().copied().collect();
+        let comps = &model.shape.components;
+        let alpha = (0..params.alpha.len())
+            .map(|j| {
+                comps
+                    .col(j)
+                    .iter()
+                    .zip(&flat)
+                    .map(|(s, g)| s * g)
+                    .sum::<f64>()
+            })
+            .collect();
+        let mut out = Params {
+            alpha,
+            translation: tbar,
+            rotation: matvec_t(&jl, thbar),
+            ..params.clone()
+        };
+        lay.write(&model, &gb, &mut out);
+        Ok(out)
     }
 }
 
