@@ -16,6 +16,12 @@ if ! cmp -s "$req" "$venv/.requirements"; then
     cp "$req" "$venv/.requirements"
 fi
 # Build the wheel with the workspace's target/ (shared with cargo) and install it.
+# The optional torch layer's tests (crates/panoman-py/tests/test_torch.py) need torch.
+torch_req=crates/panoman-py/requirements-torch.txt
+if [ "${PANOMAN_TORCH_TESTS:-}" = 1 ] && ! cmp -s "$torch_req" "$venv/.requirements-torch"; then
+    "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$torch_req"
+    cp "$torch_req" "$venv/.requirements-torch"
+fi
 wheels=target/wheels/panoman-py
 rm -rf "$wheels"
 "$venv/bin/maturin" build --release --quiet -m crates/panoman-py/Cargo.toml \

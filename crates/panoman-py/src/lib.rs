@@ -464,6 +464,66 @@ fn correction(c: bool) -> Correction {
     }
 }
 
+/// `(keypoint, vertex, weight)` arrays of [`PyModel::keypoint_rows`].
+type KeypointRows<'py> = (
+    Bound<'py, PyArray1<i64>>,
+    Bound<'py, PyArray1<i64>>,
+    Bound<'py, PyArray1<f64>>,
+);
+
+impl PyModel {
+    /// `B` parameter sets from flat arrays (see `pose_flat`), sizes checked against the model.
+    fn flat_params(
+        &self,
+        py: Python<'_>,
+        alphas: &Bound<'_, PyAny>,
+        betas: &Bound<'_, PyAny>,
+        rotations: &Bound<'_, PyAny>,
+        translations: &Bound<'_, PyAny>,
+    ) -> PyResult<Vec<panoman::Params>> {
+        let m = &self.inner;
+        let (a, b, s) = mat2(py, alphas, "alphas", None)?;
+        if s != m.n_shape() {
+            return Err(invalid(
+                py,
+                format!(
+                    "alphas: {s} columns, the model has {} shape coefficients",
+                    m.n_shape()
+                ),
+            ));
+        }
+        let blocks = m.blocks();
+        let k_total: usize = blocks.iter().map(|bi| bi.size).sum();
+        let (bt, _, k) = mat2(py, betas, "betas", Some(b))?;
+        if k != k_total {
+            return Err(invalid(
+                py,
+                format!("betas: {k} columns, the model's blocks have {k_total} coefficients"),
+            ));
+        }
+        let rot = points3(py, rotations, "rotations", Some(b))?;
+        let tr = points3(py, translations, "translations", Some(b))?;
+        Ok((0..b)
+            .map(|i| {
+                let mut off = i * k;
+                panoman::Params {
+                    alpha: a[i * s..(i + 1) * s].to_vec(),
+                    beta: blocks
+                        .iter()
+                        .map(|bi| {
+                            let v = bt[off..off + bi.size].to_vec();
+                            off += bi.size;
+                            (bi.name.as_str().to_string(), v)
+                        })
+                        .collect(),
+                    rotation: rot[i],
+                    translation: tr[i],
+                }
+            })
+            .collect())
+    }
+}
+
 #[pymethods]
 impl PyModel {
     /// Loads a model file (safetensors written by `panoman train`).
@@ -564,6 +624,127 @@ impl PyModel {
         Ok(Array3::from_shape_vec((batch, n, 3), flat)
             .expect("(B, V, 3) from B·V·3 values")
             .into_pyarray(py))
+    }
+
+    /// Many poses from flat arrays, in parallel with the GIL released: `alphas (B, S)`,
+    /// `betas (B, K)` (every block's coefficients concatenated in `blocks` order, K their
+    /// total), `rotations`/`translations (B, 3)` → `(B, V, 3)` float64. With `precise` (the
+    /// default) g's frame solve is polished to its minimiser: the function `pose_vjp`
+    /// differentiates (what `panoman.torch` calls).
+    #[pyo3(signature = (alphas, betas, rotations, translations, correction=true, precise=true))]
+    #[allow(clippy::too_many_arguments)]
+    fn pose_flat<'py>(
+        &self,
+        py: Python<'py>,
+        alphas: &Bound<'py, PyAny>,
+        betas: &Bound<'py, PyAny>,
+        rotations: &Bound<'py, PyAny>,
+        translations: &Bound<'py, PyAny>,
+        correction: bool,
+        precise: bool,
+    ) -> PyResult<Bound<'py, PyArray3<f64>>> {
+        let params = self.flat_params(py, alphas, betas, rotations, translations)?;
+        let m = &self.inner;
+        let c = self::correction(correction);
+        let n = m.n_vertices();
+        let meshes = run(py, || {
+            params
+                .par_iter()
+                .map(|p| {
+                    if precise {
+                        m.pose_precise(p, c)
+                    } else {
+                        m.pose(p, c)
+                    }
+                })
+                .collect::<panoman::Result<Vec<_>>>()
+        })?;
+        let flat: Vec<f64> = meshes.iter().flatten().flatten().copied().collect();
+        Ok(Array3::from_shape_vec((params.len(), n, 3), flat)
+            .expect("(B, V, 3) from B·V·3 values")
+            .into_pyarray(py))
+    }
+
+    /// The vector–Jacobian product of `pose_flat` (precise): for `grad (B, V, 3)` (∂loss/∂
+    /// vertices), the gradients `{alpha: (B, S), beta: (B, K), rotation: (B, 3), translation:
+    /// (B, 3)}` of `Σ ⟨grad, vertices⟩`, exact (g differentiated through its frame solve),
+    /// in parallel with the GIL released.
+    #[pyo3(signature = (alphas, betas, rotations, translations, grad, correction=true))]
+    #[allow(clippy::too_many_arguments)]
+    fn pose_vjp<'py>(
+        &self,
+        py: Python<'py>,
+        alphas: &Bound<'py, PyAny>,
+        betas: &Bound<'py, PyAny>,
+        rotations: &Bound<'py, PyAny>,
+        translations: &Bound<'py, PyAny>,
+        grad: &Bound<'py, PyAny>,
+        correction: bool,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let params = self.flat_params(py, alphas, betas, rotations, translations)?;
+        let (b, n) = (params.len(), self.inner.n_vertices());
+        let g = as_f64(py, grad, "grad")?;
+        if g.shape() != [b, n, 3] {
+            return Err(invalid(
+                py,
+                format!("grad: expected shape ({b}, {n}, 3), got {:?}", g.shape()),
+            ));
+        }
+        let g: Vec<V3> = g
+            .as_slice()?
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect();
+        let m = &self.inner;
+        let c = self::correction(correction);
+        let grads = run(py, || {
+            params
+                .par_iter()
+                .enumerate()
+                .map(|(i, p)| m.pose_vjp(p, c, &g[i * n..(i + 1) * n]))
+                .collect::<panoman::Result<Vec<_>>>()
+        })?;
+        let names: Vec<String> = m
+            .blocks()
+            .iter()
+            .map(|bi| bi.name.as_str().to_string())
+            .collect();
+        let rows = |f: &dyn Fn(&panoman::Params) -> Vec<f64>| -> Bound<'py, PyArray2<f64>> {
+            let data: Vec<Vec<f64>> = grads.iter().map(f).collect();
+            let k = data.first().map_or(0, Vec::len);
+            Array2::from_shape_vec((b, k), data.concat())
+                .expect("(B, k) rows")
+                .into_pyarray(py)
+        };
+        let d = PyDict::new(py);
+        d.set_item("alpha", rows(&|p| p.alpha.clone()))?;
+        d.set_item(
+            "beta",
+            rows(&|p| names.iter().flat_map(|nm| p.beta[nm].clone()).collect()),
+        )?;
+        d.set_item("rotation", rows(&|p| p.rotation.to_vec()))?;
+        d.set_item("translation", rows(&|p| p.translation.to_vec()))?;
+        Ok(d)
+    }
+
+    /// The keypoints as sparse rows of vertices: `(keypoint, vertex, weight)` arrays
+    /// `(N,)` int64, int64, float64, keypoint `k = Σ weight·vertex` over its entries (what
+    /// `keypoints` evaluates; `panoman.torch` builds its differentiable keypoints from it).
+    #[getter]
+    fn keypoint_rows<'py>(&self, py: Python<'py>) -> KeypointRows<'py> {
+        let (mut k, mut v, mut w) = (Vec::new(), Vec::new(), Vec::new());
+        for (i, row) in self.inner.inner().keypoints.rows.iter().enumerate() {
+            for &(vert, weight) in row {
+                k.push(i as i64);
+                v.push(i64::from(vert));
+                w.push(weight);
+            }
+        }
+        (
+            Array1::from_vec(k).into_pyarray(py),
+            Array1::from_vec(v).into_pyarray(py),
+            Array1::from_vec(w).into_pyarray(py),
+        )
     }
 
     /// Parameters of a registered mesh `(V, 3)` metres (the inverse of `pose`); `rest` is

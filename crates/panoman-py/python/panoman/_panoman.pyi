@@ -84,6 +84,31 @@ class Model:
     ) -> npt.NDArray[np.float64]:
         """B poses in parallel (GIL released): ``alphas (B, S)``, ``betas {block: (B, K)}``,
         ``rotations``/``translations (B, 3)`` → ``(B, V, 3)`` float64 metres."""
+    def pose_flat(
+        self,
+        alphas: ArrayLike,
+        betas: ArrayLike,
+        rotations: ArrayLike,
+        translations: ArrayLike,
+        correction: bool = True,
+        precise: bool = True,
+    ) -> npt.NDArray[np.float64]:
+        """B poses from flat arrays: ``alphas (B, S)``, ``betas (B, K)`` (the blocks
+        concatenated in :attr:`blocks` order), ``rotations``/``translations (B, 3)`` →
+        ``(B, V, 3)`` float64 metres; ``precise``: g's frames polished to the minimiser (the
+        function :meth:`pose_vjp` differentiates)."""
+    def pose_vjp(
+        self,
+        alphas: ArrayLike,
+        betas: ArrayLike,
+        rotations: ArrayLike,
+        translations: ArrayLike,
+        grad: ArrayLike,
+        correction: bool = True,
+    ) -> Dict[str, F64]:
+        """The exact vector–Jacobian product of :meth:`pose_flat`: for ``grad (B, V, 3)``,
+        ``{"alpha": (B, S), "beta": (B, K), "rotation": (B, 3), "translation": (B, 3)}``, the
+        gradients of ``Σ ⟨grad, vertices⟩`` (what ``panoman.torch`` calls)."""
     def encode(
         self, vertices: ArrayLike, rest: Optional[ArrayLike] = None, correction: bool = True
     ) -> Params:
@@ -96,6 +121,10 @@ class Model:
         """The model's keypoints ``(133, 3)`` float64 metres (TC-133) of a mesh ``(V, 3)``."""
     def rest_shape(self, alpha: ArrayLike) -> F64:
         """The rest shape ``B_S(α)`` ``(V, 3)`` float64 metres of ``alpha (≤S,)``."""
+    @property
+    def keypoint_rows(self) -> Tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], F64]:
+        """The keypoints as sparse rows ``(keypoint, vertex, weight)``, each ``(N,)``:
+        keypoint ``k = Σ weight · vertices[vertex]`` over its entries."""
     @property
     def keypoint_names(self) -> List[str]:
         """The 133 keypoint names (15 body, 6 feet, 70 face, 21 left hand, 21 right hand)."""
