@@ -16,8 +16,8 @@ use faer::Mat;
 use faer::dyn_stack::MemBuffer;
 use rayon::prelude::*;
 
-/// Relative residual at which the conjugate gradients stop.
-const PCG_TOLERANCE: f64 = 1e-12;
+/// Relative residual at which the conjugate gradients of a derivative stop.
+pub(crate) const PCG_TOLERANCE: f64 = 1e-12;
 /// Conjugate-gradient iterations at most.
 const PCG_MAX_ITERATIONS: usize = 500;
 
@@ -130,18 +130,19 @@ impl Pcg {
         }
     }
 
-    /// Solves `H x = b` in place (`x` holds `b` on entry), preconditioned with `(4L)⁻¹`;
-    /// returns the iterations.
+    /// Solves `H x = b` in place (`x` holds `b` on entry), preconditioned with `(4L)⁻¹`, to
+    /// the relative residual `tolerance`; returns the iterations.
     ///
     /// # Errors
     /// [`MeshError::Numerical`] when `H` shows non-positive curvature (not at a minimum) or
-    /// the iteration does not reach [`PCG_TOLERANCE`].
+    /// the iteration does not reach `tolerance`.
     pub(crate) fn solve(
         &mut self,
         rec: &Reconstructor,
         edges: &[EdgeCurvature],
         x: &mut Mat<f64>,
         scratch: &mut MemBuffer,
+        tolerance: f64,
     ) -> Result<usize> {
         if rec.n_face_red == 0 {
             return Ok(0);
@@ -175,7 +176,7 @@ impl Pcg {
             self.r -= faer::Scale(alpha) * &self.q;
             iterations += 1;
             let r_norm = dot(&self.r, &self.r).sqrt();
-            if r_norm <= PCG_TOLERANCE * b_norm {
+            if r_norm <= tolerance * b_norm {
                 return Ok(iterations);
             }
             if iterations >= PCG_MAX_ITERATIONS || !r_norm.is_finite() {

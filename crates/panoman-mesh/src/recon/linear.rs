@@ -490,9 +490,13 @@ impl GLinearization {
                 .solve_in_place(self.dual.as_mut(), &mut self.dual_scratch);
             return Ok(());
         };
-        ex.iterations = ex
-            .pcg
-            .solve(rec, &ex.edges, &mut self.dual, &mut self.dual_scratch)?;
+        ex.iterations = ex.pcg.solve(
+            rec,
+            &ex.edges,
+            &mut self.dual,
+            &mut self.dual_scratch,
+            super::hessian::PCG_TOLERANCE,
+        )?;
         Ok(())
     }
 }

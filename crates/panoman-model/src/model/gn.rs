@@ -795,7 +795,10 @@ impl Evaluator {
     /// correction MLP (exact within its ReLU pattern); α through the rest shape's edge lengths
     /// and dihedral angles and g's gauge (measured on the rest shape); g by its exact
     /// derivative ([`panoman_mesh::GDerivative::Exact`]); `rotation` through the left Jacobian
-    /// of SO(3). Costs one precise g solve and one exact transpose product.
+    /// of SO(3). Costs one precise g solve and one exact transpose product. Where g's frame
+    /// solve stops short of a minimum (its Hessian indefinite: RL/RA far from any training
+    /// pose, e.g. β drawn at random over its whole range), the Gauss–Newton derivative
+    /// replaces the exact one (a descent direction still, no longer exact).
     ///
     /// # Errors
     /// A `u` of the wrong length or non-finite, parameters that do not fit, a failing g solve
@@ -838,7 +841,20 @@ impl Evaluator {
         // β through g's exact transpose.
         let ne = self.topo.n_edges();
         let (mut gl, mut ga) = (vec![0.0; ne], vec![0.0; ne]);
-        lin.apply_transpose(&self.rec, &xbar, &mut gl, &mut ga)?;
+        if lin
+            .apply_transpose(&self.rec, &xbar, &mut gl, &mut ga)
+            .is_err()
+        {
+            // The frame solve stopped short of a minimum (its Hessian is indefinite there:
+            // RL/RA far from any training pose): the Gauss–Newton derivative, always defined.
+            lin = self.rec.linearize_with(
+                &self.ws,
+                &pt.lengths,
+                &pt.angles,
+                GDerivative::GaussNewton,
+            )?;
+            lin.apply_transpose(&self.rec, &xbar, &mut gl, &mut ga)?;
+        }
         let mut gb = vec![0.0; lay.len()];
         self.beta_gradient(&lay, &pt.dl_drl, corr.as_ref(), &gl, &ga, &mut gb);
         // α: ℓ* = ℓ_r (1 + RL) (floored), φ* = φ_r + RA, and the gauge of the rest shape.
