@@ -4,7 +4,9 @@ mod common;
 
 use common::{Rng, deform, grid, icosphere};
 use panoman_mesh::geom::V3;
-use panoman_mesh::{GDerivative, GWorkspace, Gauge, Reconstructor, RestGeometry, Rla, Topology};
+use panoman_mesh::{
+    GDerivative, GLinearization, GWorkspace, Gauge, Reconstructor, RestGeometry, Rla, Topology,
+};
 
 /// `g(ℓ, φ)` with a tight frame solve (so that finite differences see the minimiser).
 fn g(rec: &Reconstructor, ws: &mut GWorkspace, l: &[f64], a: &[f64], gauge: &Gauge) -> Vec<V3> {
@@ -100,13 +102,23 @@ fn g_transpose_is_the_adjoint_at_inconsistent_data() {
     let mut ws = rec.workspace();
     let _ = g(&rec, &mut ws, &l, &a, &gauge);
     let mut lin = rec.linearize(&ws, &l, &a).unwrap();
+    let (lhs, rhs) = adjoint_pair(&rec, &mut lin, &mut rng);
+    assert!(
+        (lhs - rhs).abs() < 1e-10 * lhs.abs().max(rhs.abs()),
+        "⟨Jv, u⟩ = {lhs} but ⟨v, Jᵀu⟩ = {rhs}"
+    );
+}
+
+/// `(⟨J v, u⟩, ⟨v, Jᵀ u⟩)` for random `v = (δℓ, δφ)` and `u`.
+fn adjoint_pair(rec: &Reconstructor, lin: &mut GLinearization, rng: &mut Rng) -> (f64, f64) {
+    let t = rec.topology();
     let dl: Vec<f64> = (0..t.n_edges()).map(|_| rng.normal()).collect();
     let da: Vec<f64> = (0..t.n_edges()).map(|_| rng.normal()).collect();
     let u: Vec<V3> = (0..t.n_vertices).map(|_| rng.vec3()).collect();
     let mut jv = vec![[0.0; 3]; t.n_vertices];
-    lin.apply(&rec, &dl, &da, &mut jv).unwrap();
+    lin.apply(rec, &dl, &da, &mut jv).unwrap();
     let (mut gl, mut ga) = (vec![0.0; t.n_edges()], vec![0.0; t.n_edges()]);
-    lin.apply_transpose(&rec, &u, &mut gl, &mut ga).unwrap();
+    lin.apply_transpose(rec, &u, &mut gl, &mut ga).unwrap();
     let lhs: f64 = jv
         .iter()
         .zip(&u)
@@ -114,10 +126,7 @@ fn g_transpose_is_the_adjoint_at_inconsistent_data() {
         .sum();
     let rhs: f64 = dl.iter().zip(&gl).map(|(x, y)| x * y).sum::<f64>()
         + da.iter().zip(&ga).map(|(x, y)| x * y).sum::<f64>();
-    assert!(
-        (lhs - rhs).abs() < 1e-10 * lhs.abs().max(rhs.abs()),
-        "⟨Jv, u⟩ = {lhs} but ⟨v, Jᵀu⟩ = {rhs}"
-    );
+    (lhs, rhs)
 }
 
 /// Max |J v − FD| and max |FD| of one linearization mode at (ℓ, φ).
@@ -200,20 +209,7 @@ fn exact_derivative_matches_finite_differences_at_inconsistent_data() {
         ws.newton_steps = 3;
         let _ = g(&rec, &mut ws, &l, &a, &gauge);
         let mut lin = rec.linearize_with(&ws, &l, &a, GDerivative::Exact).unwrap();
-        let dl: Vec<f64> = (0..t.n_edges()).map(|_| rng.normal()).collect();
-        let da: Vec<f64> = (0..t.n_edges()).map(|_| rng.normal()).collect();
-        let u: Vec<V3> = (0..t.n_vertices).map(|_| rng.vec3()).collect();
-        let mut jv = vec![[0.0; 3]; t.n_vertices];
-        lin.apply(&rec, &dl, &da, &mut jv).unwrap();
-        let (mut gl, mut ga) = (vec![0.0; t.n_edges()], vec![0.0; t.n_edges()]);
-        lin.apply_transpose(&rec, &u, &mut gl, &mut ga).unwrap();
-        let lhs: f64 = jv
-            .iter()
-            .zip(&u)
-            .map(|(p, q)| p[0] * q[0] + p[1] * q[1] + p[2] * q[2])
-            .sum();
-        let rhs: f64 = dl.iter().zip(&gl).map(|(x, y)| x * y).sum::<f64>()
-            + da.iter().zip(&ga).map(|(x, y)| x * y).sum::<f64>();
+        let (lhs, rhs) = adjoint_pair(&rec, &mut lin, &mut rng);
         // Each side carries the conjugate gradients' 1e-12 relative residual.
         assert!(
             (lhs - rhs).abs() < 1e-9 * lhs.abs().max(rhs.abs()),
