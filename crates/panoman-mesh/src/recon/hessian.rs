@@ -18,8 +18,11 @@ use rayon::prelude::*;
 
 /// Relative residual at which the conjugate gradients of a derivative stop.
 pub(crate) const PCG_TOLERANCE: f64 = 1e-12;
-/// Conjugate-gradient iterations at most.
-const PCG_MAX_ITERATIONS: usize = 500;
+/// Conjugate-gradient iterations at most. Preconditioned by the Gauss–Newton matrix, nearly
+/// consistent data (fitted or encoded parameters) needs ~10; a solve that has not converged by
+/// this count is at data so far from consistency that the caller falls back (the Gauss–Newton
+/// derivative, no Newton polish) rather than spend hundreds of back-substitutions.
+const PCG_MAX_ITERATIONS: usize = 60;
 
 /// `K_e` and `m_e` of one interior edge (module docs); zero on boundary edges.
 #[derive(Clone, Copy, Debug)]
