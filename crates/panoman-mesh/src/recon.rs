@@ -718,32 +718,55 @@ impl Reconstructor {
         chunk_sums.iter().sum()
     }
 
-    /// `∇E_F / 4` at `ws.frames` into `ws.step` (reduced faces × 3), with `s_e` in `ws.s_edge`.
-    fn gradient_into(&self, ws: &mut GWorkspace) {
+    /// E_F of `frames` (as [`Reconstructor::frame_energy`], the same sums) and, in the same
+    /// pass, `s_e` per edge into `s_edge` (module docs; 0 on boundary edges).
+    fn energy_and_s(
+        &self,
+        frames: &[M3],
+        conn: &[M3],
+        chunk_sums: &mut [f64],
+        s_edge: &mut [V3],
+    ) -> f64 {
         let topo = &self.topo;
-        // s_e per interior edge.
-        let (frames, conn) = (&ws.frames, &ws.conn);
-        ws.s_edge
-            .par_chunks_mut(FACE_CHUNK)
+        chunk_sums
+            .par_iter_mut()
+            .zip(s_edge.par_chunks_mut(FACE_CHUNK))
             .enumerate()
-            .for_each(|(c, chunk)| {
-                for (off, s) in chunk.iter_mut().enumerate() {
-                    let e = c * FACE_CHUNK + off;
-                    let [fl, fr] = topo.edge_faces[e];
-                    *s = if fr == NONE {
-                        [0.0; 3]
-                    } else {
+            .for_each(|(c, (sum, chunk))| {
+                *sum = chunk
+                    .iter_mut()
+                    .enumerate()
+                    .filter_map(|(off, s)| {
+                        let e = c * FACE_CHUNK + off;
+                        let [fl, fr] = topo.edge_faces[e];
+                        if fr == NONE {
+                            *s = [0.0; 3];
+                            return None;
+                        }
                         let a = matmul(&frames[fl as usize], &conn[e]);
-                        let m = matmul(&frames[fr as usize], &transpose(&a));
-                        [
+                        let b = &frames[fr as usize];
+                        let m = matmul(b, &transpose(&a));
+                        *s = [
                             0.5 * (m[2][1] - m[1][2]),
                             0.5 * (m[0][2] - m[2][0]),
                             0.5 * (m[1][0] - m[0][1]),
-                        ]
-                    };
-                }
+                        ];
+                        Some(crate::geom::frobenius_diff(&a, b).powi(2))
+                    })
+                    .sum();
             });
-        // ∇E_F/4 per non-gauge face, then ω = −L⁻¹(∇E_F/4).
+        chunk_sums.iter().sum()
+    }
+
+    /// `∇E_F / 4` at `ws.frames` into `ws.step` (reduced faces × 3), with `s_e` in `ws.s_edge`.
+    fn gradient_into(&self, ws: &mut GWorkspace) {
+        self.energy_and_s(&ws.frames, &ws.conn, &mut ws.chunk_sums, &mut ws.s_edge);
+        self.accumulate_gradient(ws);
+    }
+
+    /// `∇E_F / 4` into `ws.step` from the `s_e` in `ws.s_edge`.
+    fn accumulate_gradient(&self, ws: &mut GWorkspace) {
+        let topo = &self.topo;
         for f in 0..topo.n_faces() {
             let rf = self.face_red[f];
             if rf == NONE {
@@ -846,7 +869,8 @@ impl Reconstructor {
     /// constant Hessian `4 (L ⊗ I₃)` through the dual-graph factor, backtracking on E_F.
     fn frame_solve(&self, ws: &mut GWorkspace) -> Result<GStats> {
         let topo = &self.topo;
-        let mut e = self.frame_energy(&ws.frames, &ws.conn, &mut ws.chunk_sums);
+        // E_F and s_e in one pass: an accepted trial's pass leaves the next gradient's s_e.
+        let mut e = self.energy_and_s(&ws.frames, &ws.conn, &mut ws.chunk_sums, &mut ws.s_edge);
         let mut stats = GStats {
             frame_energy_start: e,
             frame_energy: e,
@@ -858,7 +882,7 @@ impl Reconstructor {
         }
         stats.frame_converged = false;
         for _ in 0..self.max_frame_iterations {
-            self.gradient_into(ws);
+            self.accumulate_gradient(ws);
             self.dual_factor
                 .solve_in_place(ws.step.as_mut(), &mut ws.step_scratch);
             ws.frames_prev.copy_from_slice(&ws.frames);
@@ -866,7 +890,8 @@ impl Reconstructor {
             let mut t = 1.0;
             for _ in 0..8 {
                 self.rotate_frames(ws, t);
-                let e_new = self.frame_energy(&ws.frames, &ws.conn, &mut ws.chunk_sums);
+                let e_new =
+                    self.energy_and_s(&ws.frames, &ws.conn, &mut ws.chunk_sums, &mut ws.s_edge);
                 if e_new.is_finite() && e_new < e {
                     stats.frame_iterations += 1;
                     let rel = (e - e_new) / e;
