@@ -36,6 +36,12 @@
 //! let again = model.pose(&encoded, Correction::Apply)?;
 //! assert!(again.iter().zip(&mesh).all(|(a, b)| (a[2] - b[2]).abs() < 0.05));
 //!
+//! // Gradients: ∂⟨u, pose⟩/∂params for a vertex covector u (e.g. ∂loss/∂vertices); moving
+//! // every vertex up by u = (0, 0, 1) is exactly the translation's z.
+//! let up = vec![[0.0, 0.0, 1.0]; model.n_vertices()];
+//! let grad = model.pose_vjp(&encoded, Correction::Apply, &up)?;
+//! assert!((grad.translation[2] - model.n_vertices() as f64).abs() < 1e-9);
+//!
 //! // Fit the mesh's 133 keypoints with PanoMan and with the LBS baseline.
 //! let targets = Targets::from_keypoints(&model.keypoints(&mesh)?);
 //! let mut fitter = Fitter::new(&model)?;
