@@ -595,6 +595,12 @@ fn pose_gradient_matches_finite_differences() {
             );
         }
     }
+    // The mean shape given as an empty α still gets a gradient for every shape component.
+    let mut mean = p.clone();
+    mean.alpha.clear();
+    let g = ev.pose_vjp(&mean, true, &u).unwrap();
+    assert_eq!(g.alpha.len(), model.shape.n_components());
+    assert!(g.alpha.iter().any(|a| *a != 0.0));
     // A covector of the wrong length or with a NaN is an error, not a panic.
     assert!(ev.pose_vjp(&p, true, &u[1..]).is_err());
     let mut bad = u.clone();

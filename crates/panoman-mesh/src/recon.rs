@@ -922,7 +922,9 @@ impl Reconstructor {
         // The polish refines a Gauss–Newton result that converged or stopped at the energy's
         // rounding (no decrease); at the iteration cap the frames are not near a minimum (far
         // from consistent data) and Newton would not help.
-        if ws.newton_steps > 0 && stats.frame_iterations < self.max_frame_iterations {
+        if ws.newton_steps > 0
+            && (stats.frame_converged || stats.frame_iterations < self.max_frame_iterations)
+        {
             self.newton_polish(ws, &mut stats);
             e = self.frame_energy(&ws.frames, &ws.conn, &mut ws.chunk_sums);
         }

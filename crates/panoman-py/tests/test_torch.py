@@ -89,6 +89,10 @@ def test_layer_shapes_dtypes_and_keypoints(model):
     assert batch.vertices.shape == (2, model.n_vertices, 3)
     assert np.allclose(batch.vertices[1].numpy(), model.pose(-alpha.numpy().astype(np.float64)),
                        atol=1e-5)
+    # In float64 the keypoints are the model's to rounding (its weights are kept in float64).
+    l64 = pt.PanoManLayer(model, dtype=torch.float64)
+    v64 = torch.tensor(ref)[None]
+    assert np.allclose(l64.keypoints(v64)[0].numpy(), model.keypoints(ref), rtol=0, atol=1e-12)
     # β from a dict equals the flat layout.
     k = model.blocks["body_a"]
     flat = layer.beta_from_dict({"body_a": torch.full((1, k), 0.1)})

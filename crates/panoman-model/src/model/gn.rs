@@ -798,7 +798,8 @@ impl Evaluator {
     /// of SO(3). Costs one precise g solve and one exact transpose product. Where g's frame
     /// solve stops short of a minimum (its Hessian indefinite: RL/RA far from any training
     /// pose, e.g. β drawn at random over its whole range), the Gauss–Newton derivative
-    /// replaces the exact one (a descent direction still, no longer exact).
+    /// replaces the exact one (a descent direction still, no longer exact). α's gradient has
+    /// every shape component, whatever the length of `params.alpha`.
     ///
     /// # Errors
     /// A `u` of the wrong length or non-finite, parameters that do not fit, a failing g solve
@@ -820,9 +821,18 @@ impl Evaluator {
         let pt = self.gn_point(params, correction, &rg, &gauge, &rest);
         self.ws.newton_steps = 0;
         let pt = pt?;
-        let mut lin =
-            self.rec
-                .linearize_with(&self.ws, &pt.lengths, &pt.angles, GDerivative::Exact)?;
+        // At the iteration cap the frames are not at a minimum: the implicit derivative would
+        // not be the derivative of what was returned, so Gauss–Newton's is taken directly.
+        let st = self.ws.stats;
+        let at_minimum = st.frame_converged || st.frame_iterations < self.rec.max_frame_iterations;
+        let mode = if at_minimum {
+            GDerivative::Exact
+        } else {
+            GDerivative::GaussNewton
+        };
+        let mut lin = self
+            .rec
+            .linearize_with(&self.ws, &pt.lengths, &pt.angles, mode)?;
         let corr = if correction {
             CorrectionLin::new(&model, &lay, params)
         } else {
@@ -869,7 +879,7 @@ impl Evaluator {
             .gauge_gradient_add(&rest, &pt.x, &xbar, &mut grest)?;
         let flat: Vec<f64> = grest.iter().flatten().copied().collect();
         let comps = &model.shape.components;
-        let alpha = (0..params.alpha.len())
+        let alpha = (0..model.shape.n_components())
             .map(|j| {
                 comps
                     .col(j)

@@ -19,7 +19,8 @@ body models::
 β is flat: every block's coefficients concatenated in ``model.blocks`` order
 (``layer.beta_slices`` names the ranges; ``layer.beta_from_dict`` builds it from a dict).
 Computation runs on the CPU in float64; results come back in the inputs' dtype and device.
-Double backward is not supported.
+Double backward is not supported; a non-finite upstream gradient raises ``InvalidError``
+(naming the vertex) rather than propagating.
 """
 
 from __future__ import annotations
@@ -109,11 +110,13 @@ class PanoManLayer(torch.nn.Module):
             self.beta_slices[name] = slice(off, off + k)
             off += k
         self.n_beta = off
+        self.dtype = dtype
         k, v, w = model.keypoint_rows
         self.register_buffer("kp_index", torch.from_numpy(k))
         self.register_buffer("kp_vertex", torch.from_numpy(v))
-        self.register_buffer("kp_weight", torch.from_numpy(w).to(dtype))
-        self.n_keypoints = int(k.max()) + 1 if len(k) else 0
+        # float64 (the model's weights), cast to the vertices' dtype where used.
+        self.register_buffer("kp_weight", torch.from_numpy(w))
+        self.n_keypoints = len(model.keypoint_names)
         self.register_buffer("faces", torch.from_numpy(model.faces))
 
     def beta_from_dict(self, blocks: dict[str, torch.Tensor], batch: int = 1) -> torch.Tensor:
@@ -123,23 +126,25 @@ class PanoManLayer(torch.nn.Module):
             raise ValueError(f"unknown β blocks {sorted(unknown)}; the model's are "
                              f"{list(self.beta_slices)}")
         like = next(iter(blocks.values()), None)
+        n = like.shape[0] if like is not None and like.dim() == 2 else batch
+        dtype = like.dtype if like is not None else self.dtype
+        device = like.device if like is not None else self.kp_weight.device
         parts = []
         for name, sl in self.beta_slices.items():
             if name in blocks:
                 t = blocks[name]
                 parts.append(t if t.dim() == 2 else t[None])
             else:
-                n = like.shape[0] if like is not None and like.dim() == 2 else batch
-                parts.append(torch.zeros(n, sl.stop - sl.start, dtype=like.dtype if like is not None
-                                         else self.kp_weight.dtype))
+                parts.append(torch.zeros(n, sl.stop - sl.start, dtype=dtype, device=device))
         return torch.cat(parts, dim=1)
 
     def keypoints(self, vertices: torch.Tensor) -> torch.Tensor:
         """The keypoints ``(B, 133, 3)`` of vertices ``(B, V, 3)``."""
-        w = self.kp_weight.to(vertices.dtype)
-        picked = vertices[:, self.kp_vertex, :] * w[None, :, None]
+        dev = vertices.device
+        w = self.kp_weight.to(device=dev, dtype=vertices.dtype)
+        picked = vertices[:, self.kp_vertex.to(dev), :] * w[None, :, None]
         out = vertices.new_zeros(vertices.shape[0], self.n_keypoints, 3)
-        return out.index_add(1, self.kp_index, picked)
+        return out.index_add(1, self.kp_index.to(dev), picked)
 
     def forward(self, alpha=None, beta=None, rotation=None, translation=None) -> PanoManOutput:
         given = [t for t in (alpha, beta, rotation, translation) if t is not None]
@@ -147,7 +152,7 @@ class PanoManLayer(torch.nn.Module):
         unbatched = bool(given) and ref.dim() == 1
         lift = (lambda t: t[None]) if unbatched else (lambda t: t)
         b = 1 if unbatched or not given else ref.shape[0]
-        dt = ref.dtype if ref.is_floating_point() else self.kp_weight.dtype
+        dt = ref.dtype if given and ref.is_floating_point() else self.dtype
 
         def get(t, n):
             return ref.new_zeros(b, n, dtype=dt) if t is None else lift(t)
