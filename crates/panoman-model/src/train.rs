@@ -925,8 +925,8 @@ fn region_errors(a: &[V3], b: &[V3], groups: &[Vec<u32>], whole: bool) -> (f64, 
 /// encoded (α from its identity's rest shape, β by least squares on its RL/RA, then also
 /// refined by Gauss–Newton on the vertex error with `gn` when given; the `*_gn` figures stay 0
 /// otherwise), rebuilt with g, rigidly aligned to
-/// the row and compared on its region. `progress(detail)` hears each row as it starts
-/// (`"body row 3/40"`).
+/// the row and compared on its region. `progress(detail)` hears each row as it starts, with
+/// an estimate of the time left once a row is done (`"body row 3/40, about 95 min left"`).
 pub fn evaluate_representation(
     model: &Arc<PanoManModel>,
     ds: &Dataset,
@@ -937,6 +937,11 @@ pub fn evaluate_representation(
 ) -> Result<RepresentationError> {
     let mut ev = Evaluator::new(model.clone())?;
     let mut out = RepresentationError::default();
+    let total: usize = [1u8, 2, 3]
+        .iter()
+        .map(|&k| held_out_rows(ds, k, rows_per_kind).len())
+        .sum();
+    let (t0, mut done) = (std::time::Instant::now(), 0usize);
     for (kind, name, slot) in [
         (1u8, "body", &mut out.body),
         (2, "face", &mut out.face),
@@ -949,7 +954,9 @@ pub fn evaluate_representation(
             ..Default::default()
         };
         for (i, &r) in rows.iter().enumerate() {
-            progress(&format!("{name} row {}/{}", i + 1, rows.len()));
+            let eta = remaining(t0.elapsed().as_secs_f64(), done, total);
+            progress(&format!("{name} row {}/{}{eta}", i + 1, rows.len()));
+            done += 1;
             let mesh = row_vertices(ds, r)?;
             let rest = row_vertices(ds, ds.rest_of[r] as usize)?;
             let p = ev.encode(&mesh, Some(&rest), false)?;
@@ -1005,6 +1012,22 @@ pub fn evaluate_representation(
         *slot = pe;
     }
     Ok(out)
+}
+
+/// `", about N min left"` for `done` of `total` rows after `elapsed_s` seconds (the mean time per
+/// row so far, over the rows left); empty before the first row is done.
+fn remaining(elapsed_s: f64, done: usize, total: usize) -> String {
+    if done == 0 || done >= total {
+        return String::new();
+    }
+    let left = elapsed_s / done as f64 * (total - done) as f64;
+    if left < 90.0 {
+        format!(", about {left:.0} s left")
+    } else if left < 5400.0 {
+        format!(", about {:.0} min left", left / 60.0)
+    } else {
+        format!(", about {:.1} h left", left / 3600.0)
+    }
 }
 
 /// The paper's Fig. 7 on held-out rows: for each part and k, the part's RL and RA blocks are
@@ -1102,4 +1125,21 @@ fn truncate_block(b: &mut Block, k: usize) {
     b.components.col_idx.truncate(end);
     b.components.values.truncate(end);
     b.beta_range.truncate(k);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::remaining;
+
+    /// The estimate is the mean time per finished row times the rows left, in s, min or h.
+    #[test]
+    fn time_left_is_the_mean_row_time_over_the_rows_left() {
+        assert_eq!(remaining(10.0, 0, 120), "");
+        // 30 s a row × 118 rows = 3,540 s.
+        assert_eq!(remaining(60.0, 2, 120), ", about 59 min left");
+        assert_eq!(remaining(20.0, 2, 4), ", about 20 s left");
+        // 75 s a row × 116 rows = 8,700 s.
+        assert_eq!(remaining(300.0, 4, 120), ", about 2.4 h left");
+        assert_eq!(remaining(5.0, 4, 4), "");
+    }
 }
