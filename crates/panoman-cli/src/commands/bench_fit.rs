@@ -99,7 +99,7 @@ pub(crate) fn run(rep: &Reporter, a: &BenchArgs, path: &Path, runs: usize) -> Re
         rep.report_with(
             "pose",
             &t,
-            "(Model::pose, B = 1, correction on, random α/β)",
+            "(Model::pose, B = 1, correction on, random α/β: far from fitted poses, g runs long; bench.py times fitted ones)",
             obj(extra),
         );
     }
