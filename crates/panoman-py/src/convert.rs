@@ -126,3 +126,15 @@ pub(crate) fn path_of(obj: &Bound<'_, PyAny>) -> PyResult<PathBuf> {
     let fspath = obj.py().import("os")?.call_method1("fspath", (obj,))?;
     Ok(PathBuf::from(fspath.extract::<String>()?))
 }
+
+/// `B` meshes of `n` vertices as a `(B, n, 3)` float64 array.
+pub(crate) fn out_meshes<'py>(
+    py: Python<'py>,
+    meshes: &[Vec<V3>],
+    n: usize,
+) -> Bound<'py, PyArray3<f64>> {
+    let flat: Vec<f64> = meshes.iter().flatten().flatten().copied().collect();
+    Array3::from_shape_vec((meshes.len(), n, 3), flat)
+        .expect("(B, V, 3) from B·V·3 values")
+        .into_pyarray(py)
+}

@@ -172,10 +172,7 @@ impl PyModel {
                 .map(|p| m.pose(p, c))
                 .collect::<panoman::Result<Vec<_>>>()
         })?;
-        let flat: Vec<f64> = meshes.iter().flatten().flatten().copied().collect();
-        Ok(Array3::from_shape_vec((batch, n, 3), flat)
-            .expect("(B, V, 3) from B·V·3 values")
-            .into_pyarray(py))
+        Ok(out_meshes(py, &meshes, n))
     }
 
     /// Many poses from flat arrays, in parallel with the GIL released: `alphas (B, S)`,
@@ -211,10 +208,7 @@ impl PyModel {
                 })
                 .collect::<panoman::Result<Vec<_>>>()
         })?;
-        let flat: Vec<f64> = meshes.iter().flatten().flatten().copied().collect();
-        Ok(Array3::from_shape_vec((params.len(), n, 3), flat)
-            .expect("(B, V, 3) from B·V·3 values")
-            .into_pyarray(py))
+        Ok(out_meshes(py, &meshes, n))
     }
 
     /// The vector–Jacobian product of `pose_flat` (precise): for `grad (B, V, 3)` (∂loss/∂
