@@ -29,7 +29,7 @@ cargo test --release --workspace
 timed "cargo test run"
 for example in 01_pose 02_fit_keypoints 03_track 04_fit_scan; do
     echo "example $example:"
-    cargo run --release --quiet -p panoman --example "$example"
+    cargo run --release --quiet --example "$example"
 done
 timed "examples"
 # Python bindings (crates/panoman-py): the venv and wheel were set up above; pytest.
