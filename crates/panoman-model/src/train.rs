@@ -289,6 +289,47 @@ pub fn part_columns(regions: &Regions, margin: usize) -> [Vec<u32>; 3] {
     [body, face, hands]
 }
 
+/// The progress callback and the report sections the training stages fill.
+struct StageLog<'a> {
+    progress: &'a mut dyn FnMut(&str),
+    /// `timings`: seconds per stage (`shape_s`, `rla_s`, `splocs_<block>_s`, …).
+    timings: serde_json::Map<String, serde_json::Value>,
+    /// `model.blocks`: per block its decomposition figures, and the MLPs'.
+    blocks: serde_json::Map<String, serde_json::Value>,
+}
+
+impl StageLog<'_> {
+    /// Trains `net` on the rows of `(x, y)` with `val` false, validated on the others (none:
+    /// no validation), reporting each epoch as `"{stage} (epoch e/E)"`.
+    fn train_mlp(
+        &mut self,
+        net: &mut Mlp,
+        x: &Mat<f32>,
+        y: &Mat<f32>,
+        val: &[bool],
+        tcfg: &mlp::TrainConfig,
+        stage: &str,
+    ) -> Result<mlp::TrainReport> {
+        let (xtr, ytr, xva, yva) = split_rows(x, y, val);
+        let train_set = mlp::Dataset::new(xtr.as_ref(), ytr.as_ref())?;
+        let val_set = if xva.nrows() > 0 {
+            Some(mlp::Dataset::new(xva.as_ref(), yva.as_ref())?)
+        } else {
+            None
+        };
+        let progress = &mut *self.progress;
+        mlp::train(net, &train_set, val_set.as_ref(), tcfg, &mut |e| {
+            progress(&format!("{stage} (epoch {}/{})", e.epoch, tcfg.epochs));
+            ControlFlow::Continue(())
+        })
+    }
+
+    fn time(&mut self, key: impl Into<String>, since: Instant) {
+        self.timings
+            .insert(key.into(), since.elapsed().as_secs_f64().into());
+    }
+}
+
 /// Trains a model (see the module docs). `progress(stage)` is called at each stage start,
 /// and within the long stages (each SPLOCS outer iteration, each MLP epoch) with
 /// `"{stage} ({detail})"`: a message that extends the current stage's name followed by ` (`
@@ -327,12 +368,101 @@ pub fn train(
             .filter(|&r| ds.kind[r] == kind && is_train[ds.identity[r] as usize] == train)
             .collect()
     };
-    let mut timings = serde_json::Map::new();
+    let mut log = StageLog {
+        progress,
+        timings: serde_json::Map::new(),
+        blocks: serde_json::Map::new(),
+    };
 
     // 1. Shape PCA.
-    progress("shape PCA");
+    (log.progress)("shape PCA");
     let t = Instant::now();
-    let rest_rows = rows_of(0, true);
+    let shape = shape_pca(ds, &rows_of(0, true), cfg.n_shape)?;
+    log.time("shape_s", t);
+    let nv = ds.n_vertices;
+    let vbar: Vec<V3> = shape
+        .mean
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+
+    // 2. RLA of the training rows, per kind.
+    (log.progress)("RL/RA of the training rows");
+    let t = Instant::now();
+    let kinds_rows: [Vec<usize>; 3] = [rows_of(1, true), rows_of(2, true), rows_of(3, true)];
+    let rlas = training_rla(ds, &topo, &kinds_rows)?;
+    log.time("rla_s", t);
+
+    // 3. Decompositions, then the blocks with their components sorted by energy.
+    let cols = part_columns(inputs.regions, cfg.margin_rings);
+    let decs = decompose(&topo, &vbar, &cols, &rlas, cfg, &mut log)?;
+    let (blocks, orders) = sorted_blocks(&decs, &cols);
+    let body = BodyCoefficients::new(&decs, &orders, &blocks, rlas[0].len());
+    // Validation split of the training identities (for early stopping): every 7th identity.
+    let body_rows = &kinds_rows[0];
+    let val_mask: Vec<bool> = body_rows.iter().map(|&r| ds.identity[r] % 7 == 3).collect();
+
+    // 4. Correction MLP.
+    let correction = if cfg.correction_hidden > 0 {
+        Some(train_correction(
+            &topo, &vbar, &blocks, &rlas[0], &body, &val_mask, cfg, &mut log,
+        )?)
+    } else {
+        None
+    };
+
+    // 5. Motion MLP θ → β_B.
+    let motion = if !cfg.motion_hidden.is_empty() {
+        Some(train_motion(
+            ds, body_rows, &blocks, &body, &val_mask, cfg, &mut log,
+        )?)
+    } else {
+        None
+    };
+
+    let explained_shape: f64 = shape.explained_variance_ratio.iter().sum();
+    let config_json = serde_json::to_value(cfg).expect("config serializes");
+    let det_report = serde_json::json!({
+        "train_identities": ds.train.len(),
+        "held_out_identities": ds.held_out.len(),
+        "rows": {"body": kinds_rows[0].len(), "face": kinds_rows[1].len(), "hands": kinds_rows[2].len()},
+        "shape": {"components": shape.n_components(), "explained_variance": explained_shape,
+                  "explained_per_component": shape.explained_variance_ratio},
+        "blocks": log.blocks,
+    });
+    let model = PanoManModel {
+        topology_name: inputs.topology_name.clone(),
+        topology_hash: topo.hash_hex(),
+        faces: inputs.faces.clone(),
+        n_vertices: nv,
+        shape,
+        blocks,
+        correction,
+        motion,
+        edge_part: inputs
+            .regions
+            .edge_part
+            .iter()
+            .map(|p| p.index() as u8)
+            .collect(),
+        keypoints: inputs.keypoints.clone(),
+        config: config_json,
+        report: det_report.clone(),
+        rig: None,
+    };
+
+    log.time("total_s", t_all);
+    let report = serde_json::json!({
+        "preset": cfg.preset,
+        "model": det_report,
+        "timings": log.timings,
+    });
+    Ok(TrainOutput { model, report })
+}
+
+/// Stage 1: the shape PCA of the training identities' rest meshes (`rest_rows`), with
+/// `min(n_shape, rows − 1)` components.
+fn shape_pca(ds: &Dataset, rest_rows: &[usize], n_shape: usize) -> Result<ShapePca> {
     if rest_rows.len() < 2 {
         return Err(ModelError::Invalid(
             "need at least 2 training identities".into(),
@@ -346,19 +476,16 @@ pub fn train(
             .collect::<Result<_>>()?;
         Mat::<f64>::from_fn(rests.len(), 3 * nv, |i, j| rests[i][j / 3][j % 3])
     };
-    let shape = ShapePca::fit(rest_mat.as_ref(), cfg.n_shape.min(rest_rows.len() - 1))?;
-    timings.insert("shape_s".into(), t.elapsed().as_secs_f64().into());
-    let vbar: Vec<V3> = shape
-        .mean
-        .chunks_exact(3)
-        .map(|c| [c[0], c[1], c[2]])
-        .collect();
+    ShapePca::fit(rest_mat.as_ref(), n_shape.min(rest_rows.len() - 1))
+}
 
-    // 2. RLA of the training rows, per kind.
-    progress("RL/RA of the training rows");
-    let t = Instant::now();
-    let kinds_rows: [Vec<usize>; 3] = [rows_of(1, true), rows_of(2, true), rows_of(3, true)];
-    // Rest geometry once per identity (its rest row), then every row against its own.
+/// Stage 2: RL/RA (f32) of the rows of each kind (body, face, hands), each row against its
+/// identity's rest geometry (built once per identity, in parallel).
+fn training_rla(
+    ds: &Dataset,
+    topo: &Topology,
+    kinds_rows: &[Vec<usize>; 3],
+) -> Result<Vec<Vec<RowRla>>> {
     let mut rest_ids: Vec<usize> = kinds_rows
         .iter()
         .flatten()
@@ -368,14 +495,14 @@ pub fn train(
     rest_ids.dedup();
     let rest_geo: std::collections::HashMap<usize, RestGeometry> = rest_ids
         .par_iter()
-        .map(|&r| Ok((r, RestGeometry::new(&topo, &row_vertices(ds, r)?)?)))
+        .map(|&r| Ok((r, RestGeometry::new(topo, &row_vertices(ds, r)?)?)))
         .collect::<Result<_>>()?;
     let rla_of = |rows: &[usize]| -> Result<Vec<RowRla>> {
         rows.par_iter()
             .map(|&r| {
                 let rg = &rest_geo[&(ds.rest_of[r] as usize)];
                 let mesh = row_vertices(ds, r)?;
-                let x = Rla::compute(&topo, rg, &mesh)?;
+                let x = Rla::compute(topo, rg, &mesh)?;
                 Ok(RowRla {
                     rl: x.rl.iter().map(|&v| v as f32).collect(),
                     ra: x.ra.iter().map(|&v| v as f32).collect(),
@@ -383,22 +510,26 @@ pub fn train(
             })
             .collect()
     };
-    let rlas: Vec<Vec<RowRla>> = kinds_rows
-        .iter()
-        .map(|rows| rla_of(rows))
-        .collect::<Result<_>>()?;
-    timings.insert("rla_s".into(), t.elapsed().as_secs_f64().into());
+    kinds_rows.iter().map(|rows| rla_of(rows)).collect()
+}
 
-    // 3. Decompositions.
-    let cols = part_columns(inputs.regions, cfg.margin_rings);
-    let geo = EdgeGeodesics::new(&topo, &vbar)?;
+/// Stage 3: the SPLOCS decomposition of each block (RL/RA × body, face, hands; block
+/// `q·3 + part`) over its part's columns, in [`BLOCK_NAMES`] order.
+fn decompose(
+    topo: &Topology,
+    vbar: &[V3],
+    cols: &[Vec<u32>; 3],
+    rlas: &[Vec<RowRla>],
+    cfg: &TrainConfig,
+    log: &mut StageLog<'_>,
+) -> Result<Vec<Decomposition>> {
+    let geo = EdgeGeodesics::new(topo, vbar)?;
     let mut decs: Vec<Option<Decomposition>> = vec![None, None, None, None, None, None];
-    let mut dec_report = serde_json::Map::new();
     for part in 0..3 {
         for q in 0..2 {
             let b = q * 3 + part;
             let name = BLOCK_NAMES[b];
-            progress(&format!("decomposition {name}"));
+            (log.progress)(&format!("decomposition {name}"));
             let t = Instant::now();
             let rows = &rlas[part];
             let c = &cols[part];
@@ -431,13 +562,14 @@ pub fn train(
             opts.max_outer_iters = cfg.splocs_outer_iters;
             opts.lambda = cfg.splocs_lambda * (n as f64 / 100.0).sqrt().max(1.0);
             let iters = opts.max_outer_iters;
+            let progress = &mut *log.progress;
             let dec = splocs::fit_col_major(data, n, &dists, &opts, |rec| {
                 let it = rec.iteration + 1;
                 progress(&format!(
                     "decomposition {name} (outer iteration {it}/{iters})"
                 ));
             })?;
-            dec_report.insert(
+            log.blocks.insert(
                 name.into(),
                 serde_json::json!({
                     "rows": n, "columns": c.len(), "components": dec.n_components(),
@@ -447,16 +579,20 @@ pub fn train(
                     "outer_iterations": dec.history.len(),
                 }),
             );
-            timings.insert(format!("splocs_{name}_s"), t.elapsed().as_secs_f64().into());
+            log.time(format!("splocs_{name}_s"), t);
             decs[b] = Some(dec);
         }
     }
-    let decs: Vec<Decomposition> = decs
+    Ok(decs
         .into_iter()
         .map(|d| d.expect("all blocks fitted"))
-        .collect();
+        .collect())
+}
 
-    // Blocks, components sorted by energy (descending); W columns permuted alike.
+/// The model's blocks from the decompositions: component 0 the part's mean with a free
+/// coefficient, then the components sorted by energy (descending), each with the range of its
+/// training weights padded by 10 %. Also returns each block's order (sorted → SPLOCS index).
+fn sorted_blocks(decs: &[Decomposition], cols: &[Vec<u32>; 3]) -> (Vec<Block>, Vec<Vec<usize>>) {
     let mut orders = Vec::with_capacity(6);
     let mut blocks = Vec::with_capacity(6);
     for (b, dec) in decs.iter().enumerate() {
@@ -510,224 +646,208 @@ pub fn train(
         });
         orders.push(order);
     }
-    // Training β of the body rows (sorted order): [β_LB | β_AB].
-    let n_body = rlas[0].len();
-    let (kl, ka) = (blocks[0].n_components(), blocks[3].n_components());
-    // Column 0 of each block is the mean's coefficient (1 on the body rows).
-    let beta_b = Mat::<f32>::from_fn(n_body, kl + ka, |i, j| {
-        if j == 0 || j == kl {
-            1.0
-        } else if j < kl {
-            decs[0].weights[(i, orders[0][j - 1])]
-        } else {
-            decs[3].weights[(i, orders[3][j - kl - 1])]
-        }
-    });
+    (blocks, orders)
+}
 
-    // The MLPs' body coefficients: β_B without the two constant mean coefficients.
-    let beta_mlp = Mat::<f32>::from_fn(n_body, kl + ka - 2, |i, j| {
-        if j < kl - 1 {
-            beta_b[(i, j + 1)]
-        } else {
-            beta_b[(i, j + 2)]
-        }
-    });
-    // Validation split of the training identities (for early stopping): every 7th identity.
-    let body_rows = &kinds_rows[0];
-    let val_mask: Vec<bool> = body_rows.iter().map(|&r| ds.identity[r] % 7 == 3).collect();
+/// The training β of the body rows in the blocks' sorted order.
+struct BodyCoefficients {
+    /// Components of body RL and body RA (each with its mean's coefficient).
+    kl: usize,
+    ka: usize,
+    /// `[β_LB | β_AB]`, rows × (kl + ka); columns 0 and kl (the means' coefficients) are 1.
+    beta_b: Mat<f32>,
+    /// The MLPs' body coefficients: β_B without the two constant mean coefficients.
+    beta_mlp: Mat<f32>,
+}
 
-    // 4. Correction MLP.
-    let correction = if cfg.correction_hidden > 0 {
-        progress("correction MLP");
-        let t = Instant::now();
-        let (ml, ma) = (blocks[0].columns.len(), blocks[3].columns.len());
-        let mut y = Mat::<f32>::zeros(n_body, ml + ma);
-        for i in 0..n_body {
-            let bl: Vec<f64> = (0..kl).map(|j| beta_b[(i, j)] as f64).collect();
-            let ba: Vec<f64> = (0..ka).map(|j| beta_b[(i, kl + j)] as f64).collect();
-            let rl = block_reconstruct(&blocks[0], &bl);
-            let ra = block_reconstruct(&blocks[3], &ba);
-            for (j, &e) in blocks[0].columns.iter().enumerate() {
-                y[(i, j)] = rlas[0][i].rl[e as usize] - rl[j] as f32;
+impl BodyCoefficients {
+    fn new(decs: &[Decomposition], orders: &[Vec<usize>], blocks: &[Block], n_body: usize) -> Self {
+        let (kl, ka) = (blocks[0].n_components(), blocks[3].n_components());
+        let beta_b = Mat::<f32>::from_fn(n_body, kl + ka, |i, j| {
+            if j == 0 || j == kl {
+                1.0
+            } else if j < kl {
+                decs[0].weights[(i, orders[0][j - 1])]
+            } else {
+                decs[3].weights[(i, orders[3][j - kl - 1])]
             }
-            for (j, &e) in blocks[3].columns.iter().enumerate() {
-                y[(i, ml + j)] = rlas[0][i].ra[e as usize] - ra[j] as f32;
-            }
-        }
-        let omega = bending_weights(&topo, &vbar);
-        let mut w = vec![1.0f32; ml + ma];
-        for (j, &e) in blocks[3].columns.iter().enumerate() {
-            w[ml + j] = omega[e as usize] as f32;
-        }
-        let hopts = PcaHeadOptions {
-            max_rank: cfg.correction_rank.min(n_body.saturating_sub(1)).max(1),
-            min_rank: 1,
-            target_explained: 0.99,
-            seed: cfg.seed,
-            ..PcaHeadOptions::default()
-        };
-        let fit = PcaHead::fit(y.as_ref(), Some(&w), &hopts)?;
-        let codes = fit.codes;
-        let (xtr, ytr, xva, yva) = split_rows(&beta_mlp, &codes, &val_mask);
-        let mut net = Mlp::new(
-            &[kl + ka - 2, cfg.correction_hidden, fit.head.rank()],
-            cfg.seed ^ 0xC0,
-        )?;
-        let tcfg = mlp::TrainConfig {
-            epochs: cfg.correction_epochs,
-            seed: cfg.seed ^ 0xC1,
-            output_norm: OutputNorm::Global,
-            weight_decay: cfg.correction_weight_decay,
-            patience: Some(cfg.correction_patience),
-            ..mlp::TrainConfig::default()
-        };
-        let train_set = mlp::Dataset::new(xtr.as_ref(), ytr.as_ref())?;
-        let val_set = if xva.nrows() > 0 {
-            Some(mlp::Dataset::new(xva.as_ref(), yva.as_ref())?)
-        } else {
-            None
-        };
-        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |e| {
-            progress(&format!(
-                "correction MLP (epoch {}/{})",
-                e.epoch, cfg.correction_epochs
-            ));
-            ControlFlow::Continue(())
-        })?;
-        timings.insert("correction_s".into(), t.elapsed().as_secs_f64().into());
-        dec_report.insert(
-            "correction".into(),
-            serde_json::json!({"head_rank": fit.head.rank(), "head_explained": fit.explained_ratio,
-                               "epochs_run": rep.history.len(), "best_val_loss": rep.best_val_loss,
-                               "final_train_loss": rep.history.last().map(|h| h.train_loss)}),
-        );
-        Some(Correction {
-            mlp: net,
-            head: fit.head,
-        })
-    } else {
-        None
-    };
-
-    // 5. Motion MLP θ → β_B.
-    let motion = if !cfg.motion_hidden.is_empty() {
-        progress("motion MLP θ→β");
-        let t = Instant::now();
-        let (bones, index): (Vec<String>, Vec<u32>) = ds
-            .theta_bones
-            .iter()
-            .enumerate()
-            .filter(|(_, n)| is_body_bone(n))
-            .map(|(i, n)| (n.clone(), i as u32))
-            .unzip();
-        let p = ds.theta.len() / ds.n_rows.max(1);
-        let x = Mat::<f32>::from_fn(n_body, 6 * index.len(), |i, j| {
-            let r = body_rows[i];
-            let th = &ds.theta[r * p..(r + 1) * p];
-            let b = index[j / 6] as usize;
-            let rot = panoman_mesh::rotation::euler_xyz(
-                [th[3 * b], th[3 * b + 1], th[3 * b + 2]].map(f64::from),
-            );
-            // 6-D representation: the first two columns of R.
-            let (col, row) = ((j % 6) / 3, (j % 6) % 3);
-            rot[row][col] as f32
         });
-        // Gram metric MᵀM over the MLP's outputs (components 1.. of body_l and body_a).
-        let km = kl + ka - 2;
-        let mut gram = Mat::<f64>::zeros(km, km);
-        let gl = blocks[0].components.gram();
-        let ga = blocks[3].components.gram();
-        for a in 1..kl {
-            for c in 1..kl {
-                gram[(a - 1, c - 1)] = gl[a * kl + c];
+        let beta_mlp = Mat::<f32>::from_fn(n_body, kl + ka - 2, |i, j| {
+            if j < kl - 1 {
+                beta_b[(i, j + 1)]
+            } else {
+                beta_b[(i, j + 2)]
             }
+        });
+        BodyCoefficients {
+            kl,
+            ka,
+            beta_b,
+            beta_mlp,
         }
-        for a in 1..ka {
-            for c in 1..ka {
-                gram[(kl - 1 + a - 1, kl - 1 + c - 1)] = ga[a * ka + c];
-            }
+    }
+}
+
+/// Stage 4: the correction MLP `R(β_B)`: a PCA head over the body rows' RL/RA residuals
+/// (RA weighted by the bending weights ω), and an MLP from β_B to the head's codes.
+#[allow(clippy::too_many_arguments)]
+fn train_correction(
+    topo: &Topology,
+    vbar: &[V3],
+    blocks: &[Block],
+    body_rla: &[RowRla],
+    body: &BodyCoefficients,
+    val_mask: &[bool],
+    cfg: &TrainConfig,
+    log: &mut StageLog<'_>,
+) -> Result<Correction> {
+    (log.progress)("correction MLP");
+    let t = Instant::now();
+    let (kl, ka, beta_b) = (body.kl, body.ka, &body.beta_b);
+    let n_body = beta_b.nrows();
+    let (ml, ma) = (blocks[0].columns.len(), blocks[3].columns.len());
+    let mut y = Mat::<f32>::zeros(n_body, ml + ma);
+    for i in 0..n_body {
+        let bl: Vec<f64> = (0..kl).map(|j| beta_b[(i, j)] as f64).collect();
+        let ba: Vec<f64> = (0..ka).map(|j| beta_b[(i, kl + j)] as f64).collect();
+        let rl = block_reconstruct(&blocks[0], &bl);
+        let ra = block_reconstruct(&blocks[3], &ba);
+        for (j, &e) in blocks[0].columns.iter().enumerate() {
+            y[(i, j)] = body_rla[i].rl[e as usize] - rl[j] as f32;
         }
-        let tr: f64 = (0..km).map(|i| gram[(i, i)]).sum::<f64>() / km.max(1) as f64;
-        for i in 0..km {
-            gram[(i, i)] += 1e-3 * tr.max(1e-12);
+        for (j, &e) in blocks[3].columns.iter().enumerate() {
+            y[(i, ml + j)] = body_rla[i].ra[e as usize] - ra[j] as f32;
         }
-        let mut sizes = vec![6 * index.len()];
-        sizes.extend_from_slice(&cfg.motion_hidden);
-        sizes.push(km);
-        let mut net = Mlp::new(&sizes, cfg.seed ^ 0x70)?;
-        let tcfg = mlp::TrainConfig {
-            epochs: cfg.motion_epochs,
-            seed: cfg.seed ^ 0x71,
-            loss: Loss::Metric(gram),
-            ..mlp::TrainConfig::default()
-        };
-        let (xtr, ytr, xva, yva) = split_rows(&x, &beta_mlp, &val_mask);
-        let train_set = mlp::Dataset::new(xtr.as_ref(), ytr.as_ref())?;
-        let val_set = if xva.nrows() > 0 {
-            Some(mlp::Dataset::new(xva.as_ref(), yva.as_ref())?)
-        } else {
-            None
-        };
-        let rep = mlp::train(&mut net, &train_set, val_set.as_ref(), &tcfg, &mut |e| {
-            progress(&format!(
-                "motion MLP θ→β (epoch {}/{})",
-                e.epoch, cfg.motion_epochs
-            ));
-            ControlFlow::Continue(())
-        })?;
-        timings.insert("motion_s".into(), t.elapsed().as_secs_f64().into());
-        dec_report.insert(
-            "motion".into(),
-            serde_json::json!({"inputs": 6 * index.len(), "epochs_run": rep.history.len(),
-                               "best_val_loss": rep.best_val_loss}),
+    }
+    let omega = bending_weights(topo, vbar);
+    let mut w = vec![1.0f32; ml + ma];
+    for (j, &e) in blocks[3].columns.iter().enumerate() {
+        w[ml + j] = omega[e as usize] as f32;
+    }
+    let hopts = PcaHeadOptions {
+        max_rank: cfg.correction_rank.min(n_body.saturating_sub(1)).max(1),
+        min_rank: 1,
+        target_explained: 0.99,
+        seed: cfg.seed,
+        ..PcaHeadOptions::default()
+    };
+    let fit = PcaHead::fit(y.as_ref(), Some(&w), &hopts)?;
+    let codes = fit.codes;
+    let mut net = Mlp::new(
+        &[kl + ka - 2, cfg.correction_hidden, fit.head.rank()],
+        cfg.seed ^ 0xC0,
+    )?;
+    let tcfg = mlp::TrainConfig {
+        epochs: cfg.correction_epochs,
+        seed: cfg.seed ^ 0xC1,
+        output_norm: OutputNorm::Global,
+        weight_decay: cfg.correction_weight_decay,
+        patience: Some(cfg.correction_patience),
+        ..mlp::TrainConfig::default()
+    };
+    let rep = log.train_mlp(
+        &mut net,
+        &body.beta_mlp,
+        &codes,
+        val_mask,
+        &tcfg,
+        "correction MLP",
+    )?;
+    log.time("correction_s", t);
+    log.blocks.insert(
+        "correction".into(),
+        serde_json::json!({"head_rank": fit.head.rank(), "head_explained": fit.explained_ratio,
+                           "epochs_run": rep.history.len(), "best_val_loss": rep.best_val_loss,
+                           "final_train_loss": rep.history.last().map(|h| h.train_loss)}),
+    );
+    Ok(Correction {
+        mlp: net,
+        head: fit.head,
+    })
+}
+
+/// Stage 5: the motion MLP θ → β_B over the body bones' rotations (6-D: the first two
+/// columns of each R), trained in the metric of the blocks' Gram matrices.
+fn train_motion(
+    ds: &Dataset,
+    body_rows: &[usize],
+    blocks: &[Block],
+    body: &BodyCoefficients,
+    val_mask: &[bool],
+    cfg: &TrainConfig,
+    log: &mut StageLog<'_>,
+) -> Result<Motion> {
+    (log.progress)("motion MLP θ→β");
+    let t = Instant::now();
+    let (kl, ka) = (body.kl, body.ka);
+    let n_body = body.beta_b.nrows();
+    let (bones, index): (Vec<String>, Vec<u32>) = ds
+        .theta_bones
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| is_body_bone(n))
+        .map(|(i, n)| (n.clone(), i as u32))
+        .unzip();
+    let p = ds.theta.len() / ds.n_rows.max(1);
+    let x = Mat::<f32>::from_fn(n_body, 6 * index.len(), |i, j| {
+        let r = body_rows[i];
+        let th = &ds.theta[r * p..(r + 1) * p];
+        let b = index[j / 6] as usize;
+        let rot = panoman_mesh::rotation::euler_xyz(
+            [th[3 * b], th[3 * b + 1], th[3 * b + 2]].map(f64::from),
         );
-        Some(Motion {
-            mlp: net,
-            theta_bones: bones,
-            theta_index: index,
-        })
-    } else {
-        None
-    };
-
-    let explained_shape: f64 = shape.explained_variance_ratio.iter().sum();
-    let config_json = serde_json::to_value(cfg).expect("config serializes");
-    let det_report = serde_json::json!({
-        "train_identities": ds.train.len(),
-        "held_out_identities": ds.held_out.len(),
-        "rows": {"body": kinds_rows[0].len(), "face": kinds_rows[1].len(), "hands": kinds_rows[2].len()},
-        "shape": {"components": shape.n_components(), "explained_variance": explained_shape,
-                  "explained_per_component": shape.explained_variance_ratio},
-        "blocks": dec_report,
+        // 6-D representation: the first two columns of R.
+        let (col, row) = ((j % 6) / 3, (j % 6) % 3);
+        rot[row][col] as f32
     });
-    let model = PanoManModel {
-        topology_name: inputs.topology_name.clone(),
-        topology_hash: topo.hash_hex(),
-        faces: inputs.faces.clone(),
-        n_vertices: nv,
-        shape,
-        blocks,
-        correction,
-        motion,
-        edge_part: inputs
-            .regions
-            .edge_part
-            .iter()
-            .map(|p| p.index() as u8)
-            .collect(),
-        keypoints: inputs.keypoints.clone(),
-        config: config_json,
-        report: det_report.clone(),
-        rig: None,
+    // Gram metric MᵀM over the MLP's outputs (components 1.. of body_l and body_a).
+    let km = kl + ka - 2;
+    let mut gram = Mat::<f64>::zeros(km, km);
+    let gl = blocks[0].components.gram();
+    let ga = blocks[3].components.gram();
+    for a in 1..kl {
+        for c in 1..kl {
+            gram[(a - 1, c - 1)] = gl[a * kl + c];
+        }
+    }
+    for a in 1..ka {
+        for c in 1..ka {
+            gram[(kl - 1 + a - 1, kl - 1 + c - 1)] = ga[a * ka + c];
+        }
+    }
+    let tr: f64 = (0..km).map(|i| gram[(i, i)]).sum::<f64>() / km.max(1) as f64;
+    for i in 0..km {
+        gram[(i, i)] += 1e-3 * tr.max(1e-12);
+    }
+    let mut sizes = vec![6 * index.len()];
+    sizes.extend_from_slice(&cfg.motion_hidden);
+    sizes.push(km);
+    let mut net = Mlp::new(&sizes, cfg.seed ^ 0x70)?;
+    let tcfg = mlp::TrainConfig {
+        epochs: cfg.motion_epochs,
+        seed: cfg.seed ^ 0x71,
+        loss: Loss::Metric(gram),
+        ..mlp::TrainConfig::default()
     };
-
-    timings.insert("total_s".into(), t_all.elapsed().as_secs_f64().into());
-    let report = serde_json::json!({
-        "preset": cfg.preset,
-        "model": det_report,
-        "timings": timings,
-    });
-    Ok(TrainOutput { model, report })
+    let rep = log.train_mlp(
+        &mut net,
+        &x,
+        &body.beta_mlp,
+        val_mask,
+        &tcfg,
+        "motion MLP θ→β",
+    )?;
+    log.time("motion_s", t);
+    log.blocks.insert(
+        "motion".into(),
+        serde_json::json!({"inputs": 6 * index.len(), "epochs_run": rep.history.len(),
+                           "best_val_loss": rep.best_val_loss}),
+    );
+    Ok(Motion {
+        mlp: net,
+        theta_bones: bones,
+        theta_index: index,
+    })
 }
 
 /// Evaluation after training (paper §6.1): the held-out representation error
