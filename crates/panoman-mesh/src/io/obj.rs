@@ -99,26 +99,7 @@ pub fn parse_obj(text: &str, path_for_errors: &Path) -> Result<TriMesh> {
         };
         match keyword {
             "v" => {
-                let mut p = [0.0f64; 3];
-                for (k, c) in p.iter_mut().enumerate() {
-                    let Some(tok) = tokens.next() else {
-                        return Err(err(
-                            line_no,
-                            format!("vertex has {k} coordinates, expected 3"),
-                        ));
-                    };
-                    let x: f64 = tok
-                        .parse()
-                        .map_err(|_| err(line_no, format!("malformed number '{tok}' in vertex")))?;
-                    if !x.is_finite() {
-                        return Err(err(
-                            line_no,
-                            format!("non-finite coordinate '{tok}' in vertex"),
-                        ));
-                    }
-                    *c = x;
-                }
-                let columns = 3 + tokens.count();
+                let (p, columns) = vertex_values(tokens).map_err(|m| err(line_no, m))?;
                 if is_last_unterminated && vertex_columns.is_some_and(|c| c != columns) {
                     return Err(cut(
                         line_no,
@@ -133,43 +114,14 @@ pub fn parse_obj(text: &str, path_for_errors: &Path) -> Result<TriMesh> {
             }
             "f" => {
                 let start = corners.len();
-                let mut first_form: Option<CornerForm> = None;
-                for tok in tokens {
-                    let malformed =
-                        || err(line_no, format!("malformed vertex index '{tok}' in face"));
-                    let (v_part, form) = corner(tok).ok_or_else(malformed)?;
-                    if is_last_unterminated && *first_form.get_or_insert(form) != form {
-                        return Err(cut(
-                            line_no,
-                            format!("corner '{tok}' differs in form from the face's first corner"),
-                        ));
-                    }
-                    let idx: i64 = v_part.parse().map_err(|_| malformed())?;
-                    let resolved = if idx > 0 {
-                        idx - 1
-                    } else if idx < 0 {
-                        let r = positions.len() as i64 + idx;
-                        if r < 0 {
-                            return Err(err(
-                                line_no,
-                                format!(
-                                    "relative vertex index {idx} is out of range ({} vertices read so far)",
-                                    positions.len()
-                                ),
-                            ));
+                face_corners_into(tokens, positions.len(), is_last_unterminated, &mut corners)
+                    .map_err(|(m, truncated)| {
+                        if truncated {
+                            cut(line_no, m)
+                        } else {
+                            err(line_no, m)
                         }
-                        r
-                    } else {
-                        return Err(err(
-                            line_no,
-                            "vertex index 0 is invalid (OBJ indices start at 1)".to_string(),
-                        ));
-                    };
-                    let Ok(resolved) = u32::try_from(resolved) else {
-                        return Err(err(line_no, format!("vertex index {idx} is out of range")));
-                    };
-                    corners.push(resolved);
-                }
+                    })?;
                 let n = corners.len() - start;
                 if n < 3 {
                     return Err(err(
@@ -245,6 +197,76 @@ pub fn parse_obj(text: &str, path_for_errors: &Path) -> Result<TriMesh> {
         triangulate_polygon(poly, &positions, &mut faces);
     }
     Ok(TriMesh { positions, faces })
+}
+
+/// The three coordinates of a `v` line's values (after the keyword) and the number of values
+/// (3 plus any extra columns, e.g. colours); `Err(message)` on a missing, malformed or
+/// non-finite coordinate.
+fn vertex_values<'a>(
+    mut tokens: impl Iterator<Item = &'a str>,
+) -> std::result::Result<([f64; 3], usize), String> {
+    let mut p = [0.0f64; 3];
+    for (k, c) in p.iter_mut().enumerate() {
+        let Some(tok) = tokens.next() else {
+            return Err(format!("vertex has {k} coordinates, expected 3"));
+        };
+        let x: f64 = tok
+            .parse()
+            .map_err(|_| format!("malformed number '{tok}' in vertex"))?;
+        if !x.is_finite() {
+            return Err(format!("non-finite coordinate '{tok}' in vertex"));
+        }
+        *c = x;
+    }
+    Ok((p, 3 + tokens.count()))
+}
+
+/// Appends the 0-based vertex indices of an `f` line's corners (after the keyword) to
+/// `corners`; negative indices are relative to the `n_read` vertices read so far. With
+/// `same_form` (an unterminated last line) every corner must have the first one's form.
+/// `Err((message, truncated))`: `truncated` when the error is that form check.
+fn face_corners_into<'a>(
+    tokens: impl Iterator<Item = &'a str>,
+    n_read: usize,
+    same_form: bool,
+    corners: &mut Vec<u32>,
+) -> std::result::Result<(), (String, bool)> {
+    let mut first_form: Option<CornerForm> = None;
+    for tok in tokens {
+        let malformed = || (format!("malformed vertex index '{tok}' in face"), false);
+        let (v_part, form) = corner(tok).ok_or_else(malformed)?;
+        if same_form && *first_form.get_or_insert(form) != form {
+            return Err((
+                format!("corner '{tok}' differs in form from the face's first corner"),
+                true,
+            ));
+        }
+        let idx: i64 = v_part.parse().map_err(|_| malformed())?;
+        let resolved = if idx > 0 {
+            idx - 1
+        } else if idx < 0 {
+            let r = n_read as i64 + idx;
+            if r < 0 {
+                return Err((
+                    format!(
+                        "relative vertex index {idx} is out of range ({n_read} vertices read so far)"
+                    ),
+                    false,
+                ));
+            }
+            r
+        } else {
+            return Err((
+                "vertex index 0 is invalid (OBJ indices start at 1)".to_string(),
+                false,
+            ));
+        };
+        let Ok(resolved) = u32::try_from(resolved) else {
+            return Err((format!("vertex index {idx} is out of range"), false));
+        };
+        corners.push(resolved);
+    }
+    Ok(())
 }
 
 /// The form of a face corner: which of the texture and normal indices it has.
