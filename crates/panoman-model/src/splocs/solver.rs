@@ -40,6 +40,45 @@ pub(super) struct Solver<'a, D: ColumnDistances> {
 }
 
 impl<'a, D: ColumnDistances> Solver<'a, D> {
+    /// The solver over the centred and scaled column-major data `x` (N×M) with every
+    /// component, weight and dual variable zero and the supports at their smallest radius.
+    fn new(x: Vec<f32>, n: usize, m: usize, opts: &'a SplocsOptions, dists: &'a D) -> Self {
+        let k = opts.n_components;
+        let col_sq: Vec<f64> = x
+            .par_chunks(n)
+            .map(|col| col.iter().map(|&v| (v as f64) * (v as f64)).sum::<f64>())
+            .collect();
+        let x_sq: f64 = col_sq.chunks(1024).map(|c| c.iter().sum::<f64>()).sum();
+
+        let km = k * m;
+        Solver {
+            n,
+            m,
+            k,
+            opts,
+            dists,
+            x,
+            col_sq,
+            x_sq,
+            w: vec![0.0; n * k],
+            c: vec![0.0; km],
+            z: vec![0.0; km],
+            u: vec![0.0; km],
+            f: vec![0.0; km],
+            t: vec![0.0; km],
+            s: vec![0.0; km],
+            lam: vec![opts.lambda; km],
+            dist: vec![f64::INFINITY; km],
+            p: vec![0.0; n * k],
+            g: vec![0.0; k * k],
+            a0: vec![0.0; k * k],
+            pen: vec![0.0; k],
+            centre: vec![0; k],
+            radius: vec![opts.d_min_bounds[0]; k],
+            buf: Vec::new(),
+        }
+    }
+
     pub(super) fn d_max(&self, kk: usize) -> f64 {
         self.opts.d_max_ratio * self.radius[kk]
     }
@@ -564,93 +603,13 @@ pub fn fit_col_major<D: ColumnDistances>(
     mut progress: impl FnMut(&IterationRecord),
 ) -> Result<Decomposition> {
     let t_total = Instant::now();
-    opts.validate()?;
-    if n < 2 {
-        return Err(ModelError::Invalid(
-            "splocs: need at least 2 samples".into(),
-        ));
-    }
-    if x.is_empty() || !x.len().is_multiple_of(n) {
-        return Err(ModelError::Invalid(format!(
-            "splocs: data length {} is not a positive multiple of N = {n}",
-            x.len()
-        )));
-    }
-    let m = x.len() / n;
-    if dists.n_columns() != m {
-        return Err(ModelError::Invalid(format!(
-            "splocs: the distance provider has {} columns, the data {m}",
-            dists.n_columns()
-        )));
-    }
-    if x.iter().any(|v| !v.is_finite()) {
-        return Err(ModelError::Invalid(
-            "splocs: non-finite value in the data".into(),
-        ));
-    }
+    let m = check_data(&x, n, dists, opts)?;
     let k = opts.n_components;
 
     // docs/design/splocs-model.md §3.2: centre and scale.
-    let mean: Vec<f32> = x
-        .par_chunks(n)
-        .map(|col| (col.iter().map(|&v| v as f64).sum::<f64>() / n as f64) as f32)
-        .collect();
-    x.par_chunks_mut(n).zip(&mean).for_each(|(col, &mu)| {
-        for v in col.iter_mut() {
-            *v -= mu;
-        }
-    });
-    let ss: f64 = x
-        .par_chunks(n * 16)
-        .map(|ch| ch.iter().map(|&v| (v as f64) * (v as f64)).sum::<f64>())
-        .collect::<Vec<f64>>()
-        .iter()
-        .sum();
-    let std = (ss / (n * m) as f64).sqrt();
-    if std.is_nan() || std <= 0.0 {
-        return Err(ModelError::Invalid("splocs: the data are constant".into()));
-    }
-    // s rounded to f32 first, so that the stored scale is exactly the one applied to X.
-    let sf = (1.0 / std) as f32;
+    let (mean, sf) = centre_and_scale(&mut x, n, m)?;
     let scale = sf as f64;
-    x.par_chunks_mut(1 << 16).for_each(|ch| {
-        for v in ch {
-            *v *= sf;
-        }
-    });
-    let col_sq: Vec<f64> = x
-        .par_chunks(n)
-        .map(|col| col.iter().map(|&v| (v as f64) * (v as f64)).sum::<f64>())
-        .collect();
-    let x_sq: f64 = col_sq.chunks(1024).map(|c| c.iter().sum::<f64>()).sum();
-
-    let km = k * m;
-    let mut sv = Solver {
-        n,
-        m,
-        k,
-        opts,
-        dists,
-        x,
-        col_sq,
-        x_sq,
-        w: vec![0.0; n * k],
-        c: vec![0.0; km],
-        z: vec![0.0; km],
-        u: vec![0.0; km],
-        f: vec![0.0; km],
-        t: vec![0.0; km],
-        s: vec![0.0; km],
-        lam: vec![opts.lambda; km],
-        dist: vec![f64::INFINITY; km],
-        p: vec![0.0; n * k],
-        g: vec![0.0; k * k],
-        a0: vec![0.0; k * k],
-        pen: vec![0.0; k],
-        centre: vec![0; k],
-        radius: vec![opts.d_min_bounds[0]; k],
-        buf: Vec::new(),
-    };
+    let mut sv = Solver::new(x, n, m, opts, dists);
 
     // docs/design/splocs-model.md §3.5: greedy initialization.
     let t_init = Instant::now();
@@ -758,32 +717,13 @@ pub fn fit_col_major<D: ColumnDistances>(
         .collect();
 
     // Output: C / s as sparse rows, W as f32.
-    let inv_s = 1.0 / scale;
-    let mut row_ptr = Vec::with_capacity(k + 1);
-    let mut col_idx = Vec::new();
-    let mut values = Vec::new();
-    row_ptr.push(0);
-    for kk in 0..k {
-        for e in 0..m {
-            let v = sv.c[e * k + kk];
-            if v != 0.0 {
-                col_idx.push(e as u32);
-                values.push((v * inv_s) as f32);
-            }
-        }
-        row_ptr.push(values.len());
-    }
+    let components = sparse_rows(&sv.c, k, m, 1.0 / scale);
     let weights = Mat::<f32>::from_fn(n, k, |i, j| sv.w[j * n + i] as f32);
     Ok(Decomposition {
         mean,
         scale,
         weights,
-        components: SparseRows {
-            n_cols: m,
-            row_ptr,
-            col_idx,
-            values,
-        },
+        components,
         centres: sv.centre.iter().map(|&c| c as u32).collect(),
         radii: (0..k)
             .map(|kk| [sv.radius[kk], opts.d_max_ratio * sv.radius[kk]])
@@ -794,4 +734,95 @@ pub fn fit_col_major<D: ColumnDistances>(
         init_seconds,
         total_seconds: t_total.elapsed().as_secs_f64(),
     })
+}
+
+/// Checks the sizes, options and values of [`fit_col_major`]'s input; returns M.
+fn check_data<D: ColumnDistances>(
+    x: &[f32],
+    n: usize,
+    dists: &D,
+    opts: &SplocsOptions,
+) -> Result<usize> {
+    opts.validate()?;
+    if n < 2 {
+        return Err(ModelError::Invalid(
+            "splocs: need at least 2 samples".into(),
+        ));
+    }
+    if x.is_empty() || !x.len().is_multiple_of(n) {
+        return Err(ModelError::Invalid(format!(
+            "splocs: data length {} is not a positive multiple of N = {n}",
+            x.len()
+        )));
+    }
+    let m = x.len() / n;
+    if dists.n_columns() != m {
+        return Err(ModelError::Invalid(format!(
+            "splocs: the distance provider has {} columns, the data {m}",
+            dists.n_columns()
+        )));
+    }
+    if x.iter().any(|v| !v.is_finite()) {
+        return Err(ModelError::Invalid(
+            "splocs: non-finite value in the data".into(),
+        ));
+    }
+    Ok(m)
+}
+
+/// Centres each column of the column-major N×M `x` and scales all by `s = 1/std` (rounded to
+/// f32 first, so that the stored scale is exactly the one applied); returns the column means
+/// and `s`. Fails on constant data.
+fn centre_and_scale(x: &mut [f32], n: usize, m: usize) -> Result<(Vec<f32>, f32)> {
+    let mean: Vec<f32> = x
+        .par_chunks(n)
+        .map(|col| (col.iter().map(|&v| v as f64).sum::<f64>() / n as f64) as f32)
+        .collect();
+    x.par_chunks_mut(n).zip(&mean).for_each(|(col, &mu)| {
+        for v in col.iter_mut() {
+            *v -= mu;
+        }
+    });
+    let ss: f64 = x
+        .par_chunks(n * 16)
+        .map(|ch| ch.iter().map(|&v| (v as f64) * (v as f64)).sum::<f64>())
+        .collect::<Vec<f64>>()
+        .iter()
+        .sum();
+    let std = (ss / (n * m) as f64).sqrt();
+    if std.is_nan() || std <= 0.0 {
+        return Err(ModelError::Invalid("splocs: the data are constant".into()));
+    }
+    // s rounded to f32 first, so that the stored scale is exactly the one applied to X.
+    let sf = (1.0 / std) as f32;
+    x.par_chunks_mut(1 << 16).for_each(|ch| {
+        for v in ch {
+            *v *= sf;
+        }
+    });
+    Ok((mean, sf))
+}
+
+/// The K×M row-major components `c` (`c[e·K + k]`) times `inv_s` as sparse f32 rows.
+fn sparse_rows(c: &[f64], k: usize, m: usize, inv_s: f64) -> SparseRows {
+    let mut row_ptr = Vec::with_capacity(k + 1);
+    let mut col_idx = Vec::new();
+    let mut values = Vec::new();
+    row_ptr.push(0);
+    for kk in 0..k {
+        for e in 0..m {
+            let v = c[e * k + kk];
+            if v != 0.0 {
+                col_idx.push(e as u32);
+                values.push((v * inv_s) as f32);
+            }
+        }
+        row_ptr.push(values.len());
+    }
+    SparseRows {
+        n_cols: m,
+        row_ptr,
+        col_idx,
+        values,
+    }
 }
