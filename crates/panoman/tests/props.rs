@@ -4,9 +4,10 @@
 //! residuals are finite; never a panic (proptest reports one as a failure) and never an
 //! unbounded loop (every solver stage has an iteration cap; the suite finishing is the check).
 //!
-//! Case counts (per method, PanoMan and LBS): keypoints at one point 12, collinear 12, a
-//! person up to 1 km away 12, scaled by 1e−9…1e6 12, one to five keypoints 12, a non-finite
-//! coordinate 12, duplicated handles 8, point clouds of 0–3 points 8 — 88 cases each, 176 fits.
+//! Case counts (per method, PanoMan and LBS): 6 for each of keypoints at one point,
+//! collinear, a person up to 1 km away, scaled by 1e−9…1e6, one to five keypoints and a
+//! non-finite coordinate; 4 each for duplicated handles and point clouds of 0–3 points — 44
+//! cases, 88 fits (a degenerate fit runs its stages to their caps, ≈ 1–2 s each here).
 use std::sync::{Mutex, OnceLock};
 
 use panoman::targets::PointCloud;
@@ -95,7 +96,7 @@ fn point() -> impl Strategy<Value = V3> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(12))]
+    #![proptest_config(ProptestConfig::with_cases(6))]
 
     #[test]
     fn all_keypoints_at_one_point(p in point()) {
@@ -144,7 +145,7 @@ proptest! {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(8))]
+    #![proptest_config(ProptestConfig::with_cases(4))]
 
     #[test]
     fn duplicated_handles(v in 0u32..1229, p in point(), copies in 2usize..6) {
