@@ -20,11 +20,20 @@ fi
 timed "npm ci"
 # One Python venv (target/python, scripts/python-setup.sh): the `panoman` wheel and its test
 # tools, and the PyPI `bvh` package, the second BVH reader of the `mocap export` test
-# (PANOMAN_PY_TESTS=1, set by .ci/run, makes its absence an error there).
-bash scripts/python-setup.sh
-timed "python venv + wheel"
+# (PANOMAN_PY_TESTS=1, set by .ci/run, makes its absence an error there). Its PyPI packages
+# download while cargo compiles the tests; the wheel then reuses cargo's build.
+mkdir -p target
+bash scripts/python-setup.sh --deps-only >target/python-deps.log 2>&1 &
+deps_pid=$!
 cargo test --release --workspace --no-run
 timed "cargo test build"
+if ! wait "$deps_pid"; then
+    cat target/python-deps.log >&2
+    echo "test.sh: the Python venv's packages failed to install (target/python-deps.log)" >&2
+    exit 1
+fi
+bash scripts/python-setup.sh
+timed "python venv + wheel"
 cargo test --release --workspace
 timed "cargo test run"
 for example in 01_pose 02_fit_keypoints 03_track 04_fit_scan; do
