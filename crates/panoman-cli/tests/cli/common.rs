@@ -140,3 +140,26 @@ pub fn train_small(data: &Path, out: &Path, extra: &[&str]) -> Output {
     args.extend_from_slice(&["--out", out.to_str().unwrap()]);
     panoman(&args)
 }
+
+/// Keypoints of frame `f` of an `n`-frame clip: the right arm rises and the body turns.
+pub fn clip_keypoints(
+    model: &panoman::Model,
+    g: &panoman::Generator,
+    f: usize,
+    n: usize,
+) -> Vec<[f64; 3]> {
+    let u = f as f64 / (n - 1) as f64;
+    let params = g
+        .parse_params(&format!(
+            r#"{{"pose_euler_xyz_deg": {{"upperarm01.R": [0, 0, {:.4}], "lowerarm01.R": [{:.4}, 0, 0]}},
+                "root_rotation_z_deg": {:.4}}}"#,
+            60.0 * u,
+            45.0 * u,
+            25.0 * u
+        ))
+        .unwrap();
+    let mesh = g
+        .generate(&params, model.output_topology().unwrap())
+        .unwrap();
+    model.keypoints(&mesh).unwrap()
+}

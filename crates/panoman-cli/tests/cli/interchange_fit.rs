@@ -5,7 +5,7 @@
 
 use crate::common;
 
-use common::{ok, small_model};
+use common::{clip_keypoints, ok, small_model};
 use panoman::{Generator, KeypointsFile, Model};
 use panoman_human::keypoints::{
     FACE_OFFSET, FEET_OFFSET, KeypointGroup, LHAND_OFFSET, N_BODY, N_FACE, N_FEET, N_HAND,
@@ -16,24 +16,6 @@ use panoman_interchange::keypoints_in::{
 };
 use serde_json::json;
 use std::path::Path;
-
-/// Keypoints of frame `f` of a clip: the right arm rises and the body turns.
-fn clip_keypoints(model: &Model, g: &Generator, f: usize, n: usize) -> Vec<[f64; 3]> {
-    let u = f as f64 / (n - 1) as f64;
-    let params = g
-        .parse_params(&format!(
-            r#"{{"pose_euler_xyz_deg": {{"upperarm01.R": [0, 0, {:.4}], "lowerarm01.R": [{:.4}, 0, 0]}},
-                "root_rotation_z_deg": {:.4}}}"#,
-            60.0 * u,
-            45.0 * u,
-            25.0 * u
-        ))
-        .unwrap();
-    let mesh = g
-        .generate(&params, model.output_topology().unwrap())
-        .unwrap();
-    model.keypoints(&mesh).unwrap()
-}
 
 fn read_obj(p: &Path) -> Vec<[f64; 3]> {
     panoman_mesh::io::read_mesh(p).unwrap().positions

@@ -5,29 +5,11 @@
 
 use crate::common;
 
-use common::{ok, one_line_error, panoman, small_model};
+use common::{clip_keypoints, ok, one_line_error, panoman, small_model};
 use panoman::{Generator, KeypointsFile, Model};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-
-/// Keypoints of frame `f` of an `n`-frame clip: the right arm rises and the body turns.
-fn clip_keypoints(model: &Model, g: &Generator, f: usize, n: usize) -> Vec<[f64; 3]> {
-    let u = f as f64 / (n - 1) as f64;
-    let params = g
-        .parse_params(&format!(
-            r#"{{"pose_euler_xyz_deg": {{"upperarm01.R": [0, 0, {:.4}], "lowerarm01.R": [{:.4}, 0, 0]}},
-                "root_rotation_z_deg": {:.4}}}"#,
-            60.0 * u,
-            45.0 * u,
-            25.0 * u
-        ))
-        .unwrap();
-    let mesh = g
-        .generate(&params, model.output_topology().unwrap())
-        .unwrap();
-    model.keypoints(&mesh).unwrap()
-}
 
 fn args<'a>(m: &'a str, frames: &'a str, out: &'a str, resume: bool) -> Vec<&'a str> {
     let mut a = vec!["track", "--model", m, "--frames", frames, "--out", out];
