@@ -698,58 +698,7 @@ impl Dataset {
         let (train, held_out) = (ids("train")?, ids("held_out")?);
         check_split(&train, &held_out, n_id).map_err(jerr)?;
 
-        // Header.
-        let file = File::open(&tpath).map_err(|e| HumanError::io(&tpath, e))?;
-        let file_len = file
-            .metadata()
-            .map_err(|e| HumanError::io(&tpath, e))?
-            .len();
-        let mut r = BufReader::with_capacity(8 << 20, file);
-        let mut len8 = [0u8; 8];
-        r.read_exact(&mut len8)
-            .map_err(|_| terr("too short for a safetensors header".into()))?;
-        let hlen = u64::from_le_bytes(len8);
-        if hlen > 100_000_000 || 8 + hlen > file_len {
-            return Err(terr(format!("invalid header length {hlen}")));
-        }
-        let mut hbytes = vec![0u8; hlen as usize];
-        r.read_exact(&mut hbytes)
-            .map_err(|e| HumanError::io(&tpath, e))?;
-        let htext = std::str::from_utf8(&hbytes).map_err(|_| terr("header is not UTF-8".into()))?;
-        let md: safetensors::tensor::Metadata = serde_json::from_str(htext)
-            .map_err(|e| terr(format!("invalid safetensors header: {e}")))?;
-        // Saturating: the header's offsets may sum to more than a u64 holds.
-        let claimed = (8 + hlen).saturating_add(md.data_len() as u64);
-        if claimed != file_len {
-            return Err(terr(format!(
-                "file is {file_len} bytes, header says {claimed}"
-            )));
-        }
-        let st_hash = md
-            .metadata()
-            .as_ref()
-            .and_then(|m| m.get("topology_hash"))
-            .cloned()
-            .unwrap_or_default();
-        if st_hash != hash {
-            return Err(terr(format!(
-                "topology hash {st_hash:?} differs from {JSON_FILE}'s {hash}"
-            )));
-        }
-        // Written since the files carry it: the pair must come from one run (a run killed
-        // between renaming its tensors and its description leaves a mixed pair).
-        if let Some(d) = md
-            .metadata()
-            .as_ref()
-            .and_then(|m| m.get("description_hash"))
-            && *d != description_hash(text.as_bytes())
-        {
-            return Err(terr(format!(
-                "does not belong to {JSON_FILE} (description hash {d} differs from {}: the two \
-                 files come from different runs, e.g. an interrupted `panoman synth`; run it again)",
-                description_hash(text.as_bytes())
-            )));
-        }
+        let (r, hlen, md) = read_tensor_header(&tpath, &text, &hash)?;
         let offsets = tensor_offsets(&md, 8 + hlen, n, n_v, 3 * theta_bones.len()).map_err(terr)?;
 
         // Tensors: stream the vertices (finiteness), read the rest.
@@ -946,6 +895,67 @@ fn tensor_offsets(
         );
     }
     Ok(offsets)
+}
+
+/// Opens the tensors file `tpath` and reads its safetensors header: the header length, the
+/// file length it implies, and the topology and description hashes against `hash` and the
+/// description `text` (a pair from one run). Returns the reader positioned after the header,
+/// the header length and the metadata.
+fn read_tensor_header(
+    tpath: &Path,
+    text: &str,
+    hash: &str,
+) -> Result<(BufReader<File>, u64, safetensors::tensor::Metadata)> {
+    let terr = |w: String| HumanError::format(tpath, w);
+    let file = File::open(tpath).map_err(|e| HumanError::io(tpath, e))?;
+    let file_len = file.metadata().map_err(|e| HumanError::io(tpath, e))?.len();
+    let mut r = BufReader::with_capacity(8 << 20, file);
+    let mut len8 = [0u8; 8];
+    r.read_exact(&mut len8)
+        .map_err(|_| terr("too short for a safetensors header".into()))?;
+    let hlen = u64::from_le_bytes(len8);
+    if hlen > 100_000_000 || 8 + hlen > file_len {
+        return Err(terr(format!("invalid header length {hlen}")));
+    }
+    let mut hbytes = vec![0u8; hlen as usize];
+    r.read_exact(&mut hbytes)
+        .map_err(|e| HumanError::io(tpath, e))?;
+    let htext = std::str::from_utf8(&hbytes).map_err(|_| terr("header is not UTF-8".into()))?;
+    let md: safetensors::tensor::Metadata = serde_json::from_str(htext)
+        .map_err(|e| terr(format!("invalid safetensors header: {e}")))?;
+    // Saturating: the header's offsets may sum to more than a u64 holds.
+    let claimed = (8 + hlen).saturating_add(md.data_len() as u64);
+    if claimed != file_len {
+        return Err(terr(format!(
+            "file is {file_len} bytes, header says {claimed}"
+        )));
+    }
+    let st_hash = md
+        .metadata()
+        .as_ref()
+        .and_then(|m| m.get("topology_hash"))
+        .cloned()
+        .unwrap_or_default();
+    if st_hash != hash {
+        return Err(terr(format!(
+            "topology hash {st_hash:?} differs from {JSON_FILE}'s {hash}"
+        )));
+    }
+    // Written since the files carry it: the pair must come from one run (a run killed
+    // between renaming its tensors and its description leaves a mixed pair).
+    if let Some(d) = md
+        .metadata()
+        .as_ref()
+        .and_then(|m| m.get("description_hash"))
+        && *d != description_hash(text.as_bytes())
+    {
+        return Err(terr(format!(
+            "does not belong to {JSON_FILE} (description hash {d} differs from {}: the two \
+             files come from different runs, e.g. an interrupted `panoman synth`; run it again)",
+            description_hash(text.as_bytes())
+        )));
+    }
+    Ok((r, hlen, md))
 }
 
 /// Checks that the train and held-out identities partition `0..n_id`.
