@@ -9,9 +9,9 @@
 #   FUZZ_RUNS=1000000 scripts/fuzz-smoke.sh ply   # a fixed number of executions instead
 #
 # The targets are built by plain cargo with libFuzzer's coverage instrumentation (the flags
-# cargo-fuzz passes for `-s none`, plus debug assertions and overflow checks), so neither
-# cargo-fuzz nor nightly is needed (RUSTC_BOOTSTRAP=1 lets stable accept libfuzzer-sys'
-# unstable bits); `cargo fuzz` works on the same folder for longer runs (fuzz/README.md).
+# cargo-fuzz passes for `-s none`, plus debug assertions and overflow checks) on the stable
+# toolchain, so cargo-fuzz need not be installed; RUSTC_BOOTSTRAP=1 is set as the cargo-fuzz
+# path set it on stable. `cargo fuzz` works on the same folder for longer runs (fuzz/README.md).
 set -euo pipefail
 cd "$(dirname "$0")/../fuzz"
 

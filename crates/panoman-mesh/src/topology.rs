@@ -341,7 +341,6 @@ impl EdgeTables {
 /// Vertex manifoldness and unreferenced vertices: the faces around each vertex must form a
 /// single fan.
 fn check_vertex_fans(n_vertices: usize, faces: &[[u32; 3]], t: &EdgeTables) -> Result<()> {
-    let (edge_faces, face_edges) = (&t.edge_faces, &t.face_edges);
     // Vertex manifoldness and unreferenced vertices: the faces around each vertex must form
     // a single fan. Count incident faces, then walk the fan from one face.
     let (inc_off, inc) = vertex_corners(n_vertices, faces);
@@ -355,47 +354,18 @@ fn check_vertex_fans(n_vertices: usize, faces: &[[u32; 3]], t: &EdgeTables) -> R
         let n_inc = corners.len();
         // Walk across the outgoing edge (slot s) repeatedly, then across the incoming edge.
         let (f0, s0) = corner(corners[0]);
-        let mut visited = 1usize;
-        let mut closed = false;
-        let (mut f, mut s) = (f0, s0);
-        loop {
-            let nf = other_face(edge_faces, face_edges[f as usize][s], f);
-            if nf == NONE {
-                break;
-            }
-            if nf == f0 {
-                closed = true;
-                break;
-            }
-            let ns = faces[nf as usize]
-                .iter()
-                .position(|&x| x as usize == v)
-                .unwrap();
-            f = nf;
-            s = ns;
-            visited += 1;
-            if visited > n_inc {
-                break;
-            }
-        }
+        let (forward, closed) = walk_fan(faces, t, v, (f0, s0), 0, n_inc - 1);
+        let mut visited = 1 + forward;
         if !closed {
-            let (mut f, mut s) = (f0, s0);
-            loop {
-                let nf = other_face(edge_faces, face_edges[f as usize][(s + 2) % 3], f);
-                if nf == NONE {
-                    break;
-                }
-                let ns = faces[nf as usize]
-                    .iter()
-                    .position(|&x| x as usize == v)
-                    .unwrap();
-                f = nf;
-                s = ns;
-                visited += 1;
-                if visited > n_inc {
-                    break;
-                }
-            }
+            visited += walk_fan(
+                faces,
+                t,
+                v,
+                (f0, s0),
+                2,
+                (n_inc - 1).saturating_sub(forward),
+            )
+            .0;
         }
         if visited != n_inc {
             return Err(MeshError::Topology(format!(
@@ -404,6 +374,40 @@ fn check_vertex_fans(n_vertices: usize, faces: &[[u32; 3]], t: &EdgeTables) -> R
         }
     }
     Ok(())
+}
+
+/// Walks the fan of vertex `v` from `start` = (face, slot of `v`), stepping each time across
+/// the face's edge at slot `s + step` (0: the edge leaving `v`, 2: the edge arriving at it),
+/// until the boundary, a return to the start face (forward walk only) or more than `limit`
+/// steps. Returns the faces stepped onto and whether the walk closed.
+fn walk_fan(
+    faces: &[[u32; 3]],
+    t: &EdgeTables,
+    v: usize,
+    start: (u32, usize),
+    step: usize,
+    limit: usize,
+) -> (usize, bool) {
+    let (mut f, mut s) = start;
+    let mut steps = 0;
+    loop {
+        let nf = other_face(&t.edge_faces, t.face_edges[f as usize][(s + step) % 3], f);
+        if nf == NONE {
+            return (steps, false);
+        }
+        if step == 0 && nf == start.0 {
+            return (steps, true);
+        }
+        s = faces[nf as usize]
+            .iter()
+            .position(|&x| x as usize == v)
+            .unwrap();
+        f = nf;
+        steps += 1;
+        if steps > limit {
+            return (steps, false);
+        }
+    }
 }
 
 /// Connected components of the vertices (union-find over `edges`): per vertex its component,
