@@ -10,23 +10,21 @@
 //! `ik_config_for_noise(σ)`). Prints the mean per-vertex error (mm) of
 //!
 //! * `lbs`: the keypoint IK;
-//! * `pm-kp`: `fit_frame` without the scan (PanoMan from keypoints);
+//! * `pm-kp`: `FrameSolver::fit` without the scan (PanoMan from keypoints);
 //! * `old`: the shell fit with the scan from the keypoint IK mesh (`Fitter::fit` with points,
 //!   the previous behaviour; skipped with `old=0`);
 //! * `ik-icp`: the skeletal ICP (`ik_icp`) mesh;
-//! * `pm-pts`: `fit_frame` with the scan (skeletal ICP, then the shell fit with its ICP);
+//! * `pm-pts`: `FrameSolver::fit` with the scan (skeletal ICP, then the shell fit with its ICP);
 //!
 //! and timings: the point model of the first pass's matches (`IkSolver::model_points`), one
-//! warm-started solve with them (20 iterations at most), `ik_icp` and `fit_frame` in total.
+//! warm-started solve with them (20 iterations at most), `ik_icp` and `FrameSolver::fit` in total.
 //! Options: `passes=3 sigma=0.003 plane=1 iters=20 starts=1` (skeletal ICP), `icpp=1` (the
 //! shell fit's ICP passes after the skeletal ICP); `check=1` prints full-precision
 //! keypoint-only IK results (for bitwise comparisons of the solver).
 use panoman_fit::fit::FitOptions;
 use panoman_fit::icp::{VertexFaces, correspondences_on, simulated_scan};
 use panoman_fit::ik::{IkConfig, IkTargets, PointTarget};
-use panoman_fit::{
-    Constraints, Fitter, IkIcpOptions, Rig, fit_frame, ik_config_for_noise, ik_fit, ik_icp, init_of,
-};
+use panoman_fit::{Constraints, FrameSolver, IkIcpOptions, LbsRig, ik_config_for_noise};
 use panoman_human::dataset::Dataset;
 use panoman_human::keypoints::KeypointsFile;
 use panoman_mesh::geom::{V3, norm, sub};
@@ -82,9 +80,11 @@ fn main() {
         ..defaults
     };
     let assets = panoman_human::assets::ensure_default().unwrap();
-    let rig = Rig::load(&assets, &model).unwrap();
-    let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
+    let mut solver = FrameSolver::new(
+        std::sync::Arc::new(model.clone()),
+        LbsRig::load(&assets, &model).unwrap(),
+    )
+    .unwrap();
     let to_v3 = |x: Vec<[f32; 3]>| -> Vec<V3> {
         x.iter()
             .map(|c| [c[0] as f64, c[1] as f64, c[2] as f64])
@@ -101,7 +101,7 @@ fn main() {
                 keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(&truth)),
                 ..Default::default()
             };
-            let ikr = ik_fit(&ik, &c, &Default::default()).unwrap();
+            let ikr = solver.ik_fit(&c, &Default::default()).unwrap();
             let h: f64 = ikr.posed.iter().flatten().sum();
             println!(
                 "row {r}: cost {:.17e} sum {:.17e} it {}",
@@ -114,7 +114,7 @@ fn main() {
                 initial_state: Some(st),
                 ..Default::default()
             };
-            let w = ik_fit(&ik, &c, &cfg).unwrap();
+            let w = solver.ik_fit(&c, &cfg).unwrap();
             let h: f64 = w.posed.iter().flatten().sum();
             println!(
                 "  warm: cost {:.17e} sum {:.17e} it {}",
@@ -123,14 +123,15 @@ fn main() {
         }
         return;
     }
-    let faces = rig.map.faces(rig.topology);
+    let faces_owned = solver.rig().map.faces(solver.rig().topology).to_vec();
+    let faces = &faces_owned[..];
     let vf = VertexFaces::from_faces(model.n_vertices, faces);
     let mut rng = Rng(12345);
     let mut sums = [0.0f64; 5];
     let mut times = [0.0f64; 5];
     let mut sums_icp = (0.0f64, 0.0f64);
     println!(
-        "row: lbs pm-kp old | ik-icp pm-pts (mm) | setup N pts, warm solve (it), ik-icp, fit_frame"
+        "row: lbs pm-kp old | ik-icp pm-pts (mm) | setup N pts, warm solve (it), ik-icp, FrameSolver::fit"
     );
     for i in 0..n_rows {
         let r = rows[i * rows.len() / n_rows];
@@ -159,10 +160,9 @@ fn main() {
                 / truth.len() as f64
         };
         let opts = FitOptions::default();
-        let (ikr, pm_kp) = fit_frame(&rig, &ik, &mut fitter, &c, &ikc, &opts, None).unwrap();
+        let (ikr, pm_kp) = solver.fit(&c, &ikc, &opts, None).unwrap();
         let old = if arg(&a, "old", 1) == 1 {
-            let init = init_of(&ikr, &ik, rig.generator.bone_names());
-            err(&fitter.fit(&cp, &init, &opts).unwrap().vertices)
+            err(&solver.fit_from_ik(&cp, &ikr, &opts).unwrap().vertices)
         } else {
             f64::NAN
         };
@@ -180,12 +180,15 @@ fn main() {
             })
             .collect();
         let t = Instant::now();
-        ik.model_points(&ikr.state, &Default::default(), &ptargets)
+        solver
+            .ik()
+            .model_points(&ikr.state, &Default::default(), &ptargets)
             .unwrap();
         let t_setup = t.elapsed().as_secs_f64();
         let targets = IkTargets::from_file(&c.keypoints).unwrap();
         let t = Instant::now();
-        let warm = ik
+        let warm = solver
+            .ik()
             .solve_with_points(
                 &targets,
                 &ptargets,
@@ -198,7 +201,7 @@ fn main() {
             .unwrap();
         let t_warm = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let (icp, _) = ik_icp(&rig, &ik, &cp, &ikc, &ikr, &icp_opts).unwrap();
+        let (icp, _) = solver.ik_icp(&cp, &ikc, &ikr, &icp_opts).unwrap();
         let t_icp = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let opts_pts = FitOptions {
@@ -206,13 +209,12 @@ fn main() {
             icp_passes_after_skeletal: arg(&a, "icpp", opts.icp_passes_after_skeletal),
             ..opts.clone()
         };
-        let (_, pm_pts) = fit_frame(&rig, &ik, &mut fitter, &cp, &ikc, &opts_pts, None).unwrap();
+        let (_, pm_pts) = solver.fit(&cp, &ikc, &opts_pts, None).unwrap();
         let t_frame = t.elapsed().as_secs_f64();
-        // The shell fit from this run's skeletal ICP (fit_frame's path with these options).
+        // The shell fit from this run's skeletal ICP (FrameSolver::fit's path with these options).
         let t = Instant::now();
-        let (icp2, _) = ik_icp(&rig, &ik, &cp, &ikc, &ikr, &icp_opts).unwrap();
-        let init = init_of(&icp2, &ik, rig.generator.bone_names());
-        let pm_icp = fitter.fit(&cp, &init, &opts_pts).unwrap();
+        let (icp2, _) = solver.ik_icp(&cp, &ikc, &ikr, &icp_opts).unwrap();
+        let pm_icp = solver.fit_from_ik(&cp, &icp2, &opts_pts).unwrap();
         let t_pm_icp = t.elapsed().as_secs_f64();
         let t = Instant::now();
         for _ in 0..10 {
@@ -269,7 +271,7 @@ fn main() {
         sums_icp.1 / n
     );
     println!(
-        "mean: lbs {:.2} pm-kp {:.2} old {:.2} | ik-icp {:.2} pm-pts {:.2} | setup {:.0} ms, warm solve {:.0} ms ({:.1} it), ik-icp {:.0} ms, fit_frame {:.2} s",
+        "mean: lbs {:.2} pm-kp {:.2} old {:.2} | ik-icp {:.2} pm-pts {:.2} | setup {:.0} ms, warm solve {:.0} ms ({:.1} it), ik-icp {:.0} ms, FrameSolver::fit {:.2} s",
         sums[0] / n,
         sums[1] / n,
         sums[2] / n,

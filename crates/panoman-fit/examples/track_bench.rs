@@ -6,11 +6,11 @@
 //!
 //! Generates a held-out motion clip ([`panoman_human::clip`], 4 keyframes, body + expressions +
 //! gestures on a random identity), tracks it from the exact TC-133 keypoints of every frame with
-//! [`Sequence`] (cold first frame, warm-started frames after it), and prints the median, min and
+//! [`Tracking`] (cold first frame, warm-started frames after it), and prints the median, min and
 //! max time per stage over the warm frames, and the mean per-vertex error (mm) of PanoMan and of
 //! the warm-started LBS rig (IK alone) against the truth.
 use panoman_fit::ik::{IkConfig, IkState};
-use panoman_fit::{Constraints, Fitter, Rig, Sequence, ik_fit};
+use panoman_fit::{Constraints, FrameSolver, LbsRig, Tracking};
 use panoman_human::clip::{Clip, ClipConfig};
 use panoman_human::keypoints::KeypointsFile;
 use panoman_mesh::geom::{V3, norm, sub};
@@ -31,9 +31,12 @@ fn main() {
     let seed: u64 = a.get(3).map_or(7, |s| s.parse().expect("SEED"));
     let model = PanoManModel::load(model_path.as_ref()).expect("model");
     let assets = panoman_human::assets::ensure_default().expect("assets");
-    let rig = Rig::load(&assets, &model).expect("rig");
-    let ik = rig.ik_solver().expect("IK");
-    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).expect("fitter");
+    let mut solver = FrameSolver::new(
+        std::sync::Arc::new(model.clone()),
+        LbsRig::load(&assets, &model).expect("rig"),
+    )
+    .expect("solver");
+    let rig = solver.rig();
     let clip = Clip::generate(&ClipConfig {
         seed,
         n_frames,
@@ -43,7 +46,7 @@ fn main() {
     let (_, frames) = clip
         .meshes(&rig.generator, &rig.map, rig.topology)
         .expect("clip meshes");
-    let mut seq = Sequence::default();
+    let mut seq = Tracking::default();
     let mut lbs_state: Option<IkState> = None;
     let mut times: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let (mut e_pm, mut e_lbs) = (Vec::new(), Vec::new());
@@ -52,16 +55,16 @@ fn main() {
             keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(truth)),
             ..Default::default()
         };
-        let (ikr, fit) = seq.fit_next(&rig, &ik, &mut fitter, &c).expect("fit");
-        let lbs = ik_fit(
-            &ik,
-            &c,
-            &IkConfig {
-                initial_state: lbs_state.take(),
-                ..IkConfig::default()
-            },
-        )
-        .expect("LBS");
+        let (ikr, fit) = seq.fit_next(&mut solver, &c).expect("fit");
+        let lbs = solver
+            .ik_fit(
+                &c,
+                &IkConfig {
+                    initial_state: lbs_state.take(),
+                    ..IkConfig::default()
+                },
+            )
+            .expect("LBS");
         lbs_state = Some(lbs.state.clone());
         e_pm.push(mean_mm(&fit.vertices, truth));
         e_lbs.push(mean_mm(&lbs.posed, truth));

@@ -81,7 +81,7 @@ pub struct FitOptions {
     /// ICP passes (re-matching each time; Total Capture does 2). Default 2.
     pub icp_passes: usize,
     /// ICP passes when the fit starts from the skeletal ICP of the rig on the same scan
-    /// ([`crate::fit_frame`] runs [`crate::ik_icp`] first), whose mesh is already matched.
+    /// ([`crate::FrameSolver::fit`] runs [`crate::ik_icp`] first), whose mesh is already matched.
     /// Default 1: measured on 6 held-out people (keypoints + 3,501 of 5,000 scan points,
     /// `examples/scan_bench`), one pass gives 1.69 mm against 1.78 mm with two (every person
     /// equal or better), the scan fit in about 0.6× the time.
@@ -390,15 +390,15 @@ pub struct GroupResidual {
 
 /// Everything a fit reports.
 #[derive(Clone, Debug, Serialize)]
-pub struct FitReport {
+pub struct ShellFitReport {
     /// Per stage.
     pub stages: Vec<StageReport>,
     /// Keypoint residuals per group (body, face, left_hand, right_hand), after the fit.
     pub keypoint_residuals: std::collections::BTreeMap<String, GroupResidual>,
-    /// Total time (s) of [`Fitter::fit`] (initializer excluded).
+    /// Total time (s) of [`ShellFitter::fit`] (initializer excluded).
     pub seconds: f64,
     /// The quality check of the fit's final keypoint residuals and shape ([`crate::quality`];
-    /// [`crate::pipeline::fit_frame`] adds the initializer's attempts).
+    /// [`crate::FrameSolver::fit`] adds the initializer's attempts).
     pub verdict: Verdict,
 }
 
@@ -410,13 +410,13 @@ pub struct FitResult {
     /// α, β of the last β-step and the rigid motion placing `B_P(α, β)` on the fit.
     pub params: Params,
     /// Report.
-    pub report: FitReport,
+    pub report: ShellFitReport,
 }
 
 /// Per-model fitting state: the evaluator (g, encoder), the shell solver whose pattern
 /// includes the keypoint regressors' couplings, and the ICP incidence lists. Build once, fit
 /// many frames.
-pub struct Fitter {
+pub struct ShellFitter {
     model: Arc<PanoManModel>,
     ev: Evaluator,
     solver: ShellSolver,
@@ -433,7 +433,7 @@ pub struct Fitter {
     correction_memo: Option<(Vec<f32>, Vec<f32>)>,
 }
 
-impl Fitter {
+impl ShellFitter {
     /// Builds the per-model state (topology, g, encoder, shell pattern + symbolic factor).
     pub fn new(model: Arc<PanoManModel>) -> Result<Self> {
         let ev = Evaluator::new(model.clone())?;
@@ -473,7 +473,7 @@ impl Fitter {
         let rg = RestGeometry::new(&topo, &rest)?;
         let mean_edge = rg.lengths.iter().sum::<f64>() / rg.lengths.len().max(1) as f64;
         let torso_weights = torso_weights(model, &rest);
-        Ok(Fitter {
+        Ok(ShellFitter {
             model: model.clone(),
             ev,
             solver,
@@ -682,11 +682,11 @@ impl Fitter {
         Some(r)
     }
 
-    /// Computes (and keeps) the correction residual that the first β-step of [`Fitter::fit`]
+    /// Computes (and keeps) the correction residual that the first β-step of [`ShellFitter::fit`]
     /// with `c` and `opts` will ask for when it starts from the previous frame's β
     /// ([`FitOptions::correction_warm_start`]): `R(β_prev)` depends only on the previous frame,
     /// so a tracker can compute it while the skeletal IK of the new frame runs
-    /// ([`crate::pipeline::fit_frame`]). The fit's result is the same (the fit finds it
+    /// ([`crate::FrameSolver::fit`]). The fit's result is the same (the fit finds it
     /// in the memo); nothing happens when that β-step would not ask for it.
     pub fn prefetch_correction(&mut self, c: &Constraints, opts: &FitOptions) {
         let body = &self.model.blocks[0].name;
@@ -938,7 +938,7 @@ impl Fitter {
         let keypoint_residuals = keypoint_residuals(&self.model, &c.keypoints, &x);
         let mut problems = opts.quality.keypoint_problems(&keypoint_residuals);
         problems.extend(opts.quality.shape_problems(&self.model, &params.alpha));
-        let report = FitReport {
+        let report = ShellFitReport {
             stages,
             keypoint_residuals,
             seconds: t0.elapsed().as_secs_f64(),
@@ -951,7 +951,7 @@ impl Fitter {
         })
     }
 
-    /// Stage 2 of [`Fitter::fit`]: `opts.sweeps` sweeps of a V-step on all keypoints, each
+    /// Stage 2 of [`ShellFitter::fit`]: `opts.sweeps` sweeps of a V-step on all keypoints, each
     /// after the first preceded by a β-step; a cold fit may stop after one step
     /// ([`FitOptions::one_step_tolerance`]).
     fn keypoint_stage(
@@ -1017,7 +1017,7 @@ impl Fitter {
         })
     }
 
-    /// Stage 3 of [`Fitter::fit`]: `opts.icp_passes` passes of β-step, closest-point matching
+    /// Stage 3 of [`ShellFitter::fit`]: `opts.icp_passes` passes of β-step, closest-point matching
     /// to the point cloud and V-step (none without a point cloud).
     fn icp_stages(
         &mut self,
@@ -1087,7 +1087,7 @@ impl Fitter {
     }
 }
 
-/// What the keypoint and ICP stages of [`Fitter::fit`] share: the rest geometry of `α`, the
+/// What the keypoint and ICP stages of [`ShellFitter::fit`] share: the rest geometry of `α`, the
 /// constraints, the initializer and the keypoint terms of all given keypoints.
 struct StagePass<'p> {
     rg: &'p RestGeometry,

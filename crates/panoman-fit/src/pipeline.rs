@@ -6,12 +6,9 @@
 //! points, re-matched per pass), so the shell fit starts from a mesh whose pose and body
 //! shape already follow the scan.
 use crate::error::{FitError, Result};
-use crate::fit::{
-    Constraints, FitOptions, FitResult, Fitter, Init, Placement, Previous, warm_fit_options,
-};
+use crate::fit::{Constraints, Init};
 use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences_on};
 use crate::ik::{IkConfig, IkResult, IkSolver, IkStageReport, IkState, IkTargets, PointTarget};
-use crate::quality::Verdict;
 use crate::quality::{IkAttempt, QualityOptions, ik_group_residuals, phenotype_at_bounds};
 use panoman_human::assets::AssetDir;
 use panoman_human::generator::{Generator, GeneratorOptions};
@@ -26,7 +23,7 @@ use std::sync::Arc;
 
 /// The LBS rig on a model's template topology: the generator, its map onto the template, and
 /// the TC-133 keypoint rows of that topology. Loaded once per session.
-pub struct Rig {
+pub struct LbsRig {
     /// The Anny-equivalent generator.
     pub generator: Arc<Generator>,
     /// Anny vertices → template vertices.
@@ -37,9 +34,9 @@ pub struct Rig {
     pub keypoints: KeypointSet,
 }
 
-impl Rig {
+impl LbsRig {
     /// Loads the rig for `model`'s topology (`full` or `small`) from the assets.
-    pub fn load(assets: &AssetDir, model: &PanoManModel) -> Result<Rig> {
+    pub fn load(assets: &AssetDir, model: &PanoManModel) -> Result<LbsRig> {
         let topology = Self::topology_of(model)?;
         let generator = Generator::load(assets, GeneratorOptions::default())?;
         let full = full_template(assets)?;
@@ -56,7 +53,7 @@ impl Rig {
                 model.n_vertices, model.topology_name, keypoints.n_vertices
             )));
         }
-        Ok(Rig {
+        Ok(LbsRig {
             generator: Arc::new(generator),
             map: Arc::new(map),
             topology,
@@ -65,7 +62,7 @@ impl Rig {
     }
 
     /// The rig of `model`: the one embedded in the model file when it has one (no asset
-    /// access), else read from `assets` ([`Rig::load`]); `assets` is opened lazily, only
+    /// access), else read from `assets` ([`LbsRig::load`]); `assets` is opened lazily, only
     /// for model files without an embedded rig.
     ///
     /// # Errors
@@ -73,9 +70,9 @@ impl Rig {
     pub fn for_model(
         model: &PanoManModel,
         assets: impl FnOnce() -> Result<AssetDir>,
-    ) -> Result<Rig> {
+    ) -> Result<LbsRig> {
         let Some(data) = &model.rig else {
-            return Rig::load(&assets()?, model);
+            return LbsRig::load(&assets()?, model);
         };
         let topology = Self::topology_of(model)?;
         let keypoints = KeypointSet {
@@ -91,7 +88,7 @@ impl Rig {
                 data.map.n_vertices(topology)
             )));
         }
-        Ok(Rig {
+        Ok(LbsRig {
             generator: data.generator.clone(),
             map: data.map.clone(),
             topology,
@@ -463,7 +460,7 @@ impl Default for IkIcpOptions {
 /// # Errors
 /// No keypoints in `c`; invalid IK input (see [`IkSolver::solve_with_points`]).
 pub fn ik_icp(
-    rig: &Rig,
+    rig: &LbsRig,
     ik: &IkSolver,
     c: &Constraints,
     cfg: &IkConfig,
@@ -595,94 +592,6 @@ pub fn ik_icp(
     cur.stages = stages;
     cur.seconds = start.seconds + t0.elapsed().as_secs_f64();
     Ok((cur, stats))
-}
-
-/// One frame: skeletal IK (cold, or warm-started from `warm`, e.g. the previous frame's
-/// [`IkResult::state`], which runs only the IK's final stage), with a point cloud in `c`
-/// refined by [`ik_icp`] (default options; no phenotype restarts when warm-started), then the
-/// staged PanoMan fit (with its own ICP passes on the surface) from the IK mesh. Returns the
-/// IK result (after the skeletal ICP) and the fit.
-///
-/// The frame runs on a worker of rayon's global pool (called from outside the pool,
-/// `rayon::scope` hands it to a worker and blocks): a frame makes dozens of small fork-joins
-/// (IK columns, assembly halves, PCG chunks), which start cheaply from a worker, and no idle
-/// worker spins beside the calling thread (docs/design/shell-fit.md §3.5.1).
-pub fn fit_frame(
-    rig: &Rig,
-    ik: &IkSolver,
-    fitter: &mut Fitter,
-    c: &Constraints,
-    ik_cfg: &IkConfig,
-    opts: &FitOptions,
-    warm: Option<&IkState>,
-) -> Result<(IkResult, FitResult)> {
-    let mut out = None;
-    rayon::scope(|_| out = Some(fit_frame_here(rig, ik, fitter, c, ik_cfg, opts, warm)));
-    out.expect("the scope ran its closure")
-}
-
-/// [`fit_frame`] on the calling thread.
-fn fit_frame_here(
-    rig: &Rig,
-    ik: &IkSolver,
-    fitter: &mut Fitter,
-    c: &Constraints,
-    ik_cfg: &IkConfig,
-    opts: &FitOptions,
-    warm: Option<&IkState>,
-) -> Result<(IkResult, FitResult)> {
-    fitter.validate(c)?;
-    let cfg = IkConfig {
-        initial_state: warm.cloned(),
-        ..ik_cfg.clone()
-    };
-    // The first β-step's correction residual depends only on the previous frame: computed
-    // while the IK runs (the IK's sequential parts leave a core free).
-    let model = fitter.model().clone();
-    let (ik_out, ()) = rayon::join(
-        || robust_ik(&model, ik, c, &cfg, &opts.quality),
-        || fitter.prefetch_correction(c, opts),
-    );
-    let (mut r, attempts) = ik_out?;
-    if c.points.is_some() {
-        let icp = IkIcpOptions {
-            // A warm-started frame keeps its phenotype basin.
-            phenotype_starts: if warm.is_some() {
-                Vec::new()
-            } else {
-                IkIcpOptions::default().phenotype_starts
-            },
-            ..IkIcpOptions::default()
-        };
-        r = ik_icp(rig, ik, c, ik_cfg, &r, &icp)?.0;
-    }
-    let init = init_of(&r, ik, rig.generator.bone_names());
-    let after_skeletal;
-    let opts = if c.points.is_some() {
-        after_skeletal = FitOptions {
-            icp_passes: opts.icp_passes_after_skeletal,
-            ..opts.clone()
-        };
-        &after_skeletal
-    } else {
-        opts
-    };
-    let mut fit = fitter.fit(c, &init, opts)?;
-    let chosen = attempts.iter().find(|a| a.chosen);
-    let mut problems: Vec<String> = chosen
-        .map(|a| {
-            a.problems
-                .iter()
-                .map(|p| format!("initializer: {p}"))
-                .collect()
-        })
-        .unwrap_or_default();
-    problems.extend(fit.report.verdict.reason.take());
-    if !problems.is_empty() && attempts.len() > 1 {
-        problems.push(format!("{} initializer starts tried", attempts.len()));
-    }
-    fit.report.verdict = Verdict::from_problems(problems, &opts.quality, attempts);
-    Ok((r, fit))
 }
 
 /// What fails the quality check in an IK result (empty: passes): its keypoint residuals per
@@ -818,152 +727,6 @@ pub fn robust_ik(
         .expect("at least one attempt");
     attempts[best].chosen = true;
     Ok((results.swap_remove(best), attempts))
-}
-
-/// What a [`Sequence`] carries from one frame to the next ([`Sequence::state`]).
-#[derive(Clone, Debug, Default)]
-pub struct SequenceState {
-    /// Frames fitted so far.
-    pub frames: usize,
-    /// The last frame's IK state (warm start of the next IK).
-    pub ik: Option<IkState>,
-    /// The last frame's fit (temporal terms, shape α, propagated placement).
-    pub previous: Option<Previous>,
-}
-
-/// The default [`Sequence::warm_ik_tolerance`]: the relative decrease below which the IK of a
-/// warm-started frame stops (cold solves: [`IkConfig::tolerance`], 1e−9).
-pub const WARM_IK_TOLERANCE: f64 = 1e-4;
-
-/// Frame-to-frame state of a tracked sequence (paper §5.3 for sequences; Total Capture's
-/// temporal propagation): the previous frame's IK state warm-starts the IK, and its fit gives
-/// the temporal terms, the shape α kept for the sequence and the propagated placement
-/// ([`Previous`]). The first frame is fitted with the cold options, the next ones with the
-/// warm options.
-pub struct Sequence {
-    /// Options of the first frame. Default [`FitOptions::default`].
-    pub cold: FitOptions,
-    /// Options of the following frames. Default [`warm_fit_options`].
-    pub warm: FitOptions,
-    /// Skeletal IK settings.
-    pub ik: IkConfig,
-    /// Run every frame's IK cold (no warm start), e.g. for large motion between frames; the
-    /// temporal terms stay. Default false.
-    pub cold_ik: bool,
-    /// Every this many frames a warm frame is placed by [`Placement::Aligned`] (one `g`
-    /// solve) instead of propagating the previous placement, so that the propagated torso
-    /// motion cannot drift. Default 30; 0 never.
-    pub reanchor_every: usize,
-    /// Stopping tolerance of the IK of warm-started frames ([`IkConfig::tolerance`] there;
-    /// `None`: the cold frames' `ik.tolerance`). Default [`WARM_IK_TOLERANCE`] (1e−4): on the
-    /// eval's 72-frame clip a warm IK then takes 7 LM iterations instead of 9 (1e−9), tracking
-    /// error 3.2674 → 3.2620 mm (docs/design/shell-fit.md §5). The LBS baseline's trackers
-    /// take theirs from [`Sequence::ik_config`].
-    pub warm_ik_tolerance: Option<f64>,
-    frames: usize,
-    state: Option<IkState>,
-    previous: Option<Previous>,
-}
-
-impl Default for Sequence {
-    fn default() -> Self {
-        Sequence::new(
-            FitOptions::default(),
-            warm_fit_options(),
-            IkConfig::default(),
-            false,
-        )
-    }
-}
-
-impl Sequence {
-    /// A new sequence with the given options for the first and following frames and IK
-    /// settings (no frame fitted yet).
-    pub fn new(cold: FitOptions, warm: FitOptions, ik: IkConfig, cold_ik: bool) -> Self {
-        Sequence {
-            cold,
-            warm,
-            ik,
-            cold_ik,
-            reanchor_every: 30,
-            warm_ik_tolerance: Some(WARM_IK_TOLERANCE),
-            frames: 0,
-            state: None,
-            previous: None,
-        }
-    }
-
-    /// The frame-to-frame state after the frames fitted so far (frame count, last IK state,
-    /// previous fit): with [`Sequence::set_state`] on a sequence of the same options it
-    /// continues exactly as this one would (e.g. a resumed `panoman track`).
-    pub fn state(&self) -> SequenceState {
-        SequenceState {
-            frames: self.frames,
-            ik: self.state.clone(),
-            previous: self.previous.clone(),
-        }
-    }
-
-    /// Replaces the frame-to-frame state (see [`Sequence::state`]).
-    pub fn set_state(&mut self, s: SequenceState) {
-        self.frames = s.frames;
-        self.state = s.ik;
-        self.previous = s.previous;
-    }
-
-    /// `base` with [`Sequence::warm_ik_tolerance`] as its tolerance (if set) and
-    /// [`IkConfig::full_extension`] when the frame is warm started (a limb straightened
-    /// since the previous frame must be reachable; a cold frame reaches it through the range
-    /// continuation of [`ik_fit`]): the IK settings of this sequence's frames, which an LBS
-    /// tracker of the same targets uses too so that both methods share the IK.
-    pub fn ik_config(&self, base: &IkConfig, warm: bool) -> IkConfig {
-        if !warm {
-            return base.clone();
-        }
-        IkConfig {
-            tolerance: self.warm_ik_tolerance.unwrap_or(base.tolerance),
-            full_extension: true,
-            ..base.clone()
-        }
-    }
-
-    /// Fits the next frame (`c.previous` is set from the sequence) and records it.
-    pub fn fit_next(
-        &mut self,
-        rig: &Rig,
-        ik: &IkSolver,
-        fitter: &mut Fitter,
-        c: &Constraints,
-    ) -> Result<(IkResult, FitResult)> {
-        let c = Constraints {
-            previous: self.previous.clone(),
-            ..c.clone()
-        };
-        let warm = if self.cold_ik {
-            None
-        } else {
-            self.state.as_ref()
-        };
-        let reanchor = self.reanchor_every > 0 && self.frames.is_multiple_of(self.reanchor_every);
-        let opts = match (&self.previous, reanchor) {
-            (None, _) => self.cold.clone(),
-            (Some(_), false) => self.warm.clone(),
-            (Some(_), true) => FitOptions {
-                placement: Placement::Aligned,
-                ..self.warm.clone()
-            },
-        };
-        let ik_cfg = self.ik_config(&self.ik, warm.is_some());
-        let (r, fit) = fit_frame(rig, ik, fitter, &c, &ik_cfg, &opts, warm)?;
-        self.frames += 1;
-        self.state = Some(r.state.clone());
-        self.previous = Some(Previous {
-            vertices: fit.vertices.clone(),
-            params: fit.params.clone(),
-            init: Some(r.posed.clone()),
-        });
-        Ok((r, fit))
-    }
 }
 
 /// The fit's starting point from an IK result: its posed and rest meshes, its skeleton pose

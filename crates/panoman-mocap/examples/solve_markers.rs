@@ -116,10 +116,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
 /// Prints the calibrated rig's limb lengths (mm; compare with a VSK's segment lengths).
 fn limb_lengths(model: &panoman::Model, phen: [f64; 6]) -> Result<(), Box<dyn std::error::Error>> {
-    let rig = panoman_fit::Rig::for_model(model.inner(), || {
-        Err(panoman_fit::FitError::Invalid("no rig".into()))
-    })?;
-    let ik = rig.ik_solver()?;
+    let fitter = panoman::Fitter::new(model)?;
+    let (rig, ik) = (fitter.solver().rig(), fitter.solver().ik());
     let names = rig.generator.bone_names().to_vec();
     let template = panoman_human::params::ShapeParams::default();
     let mut st = panoman_fit::ik::IkState::rest(names.len(), &template);

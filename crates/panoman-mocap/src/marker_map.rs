@@ -196,7 +196,7 @@ impl RestTemplate {
     /// # Errors
     /// Invalid shape parameters.
     pub fn new(
-        rig: &panoman_fit::Rig,
+        rig: &panoman_fit::LbsRig,
         faces: &[[u32; 3]],
         topology: &str,
         shape: &ShapeParams,

@@ -7,7 +7,7 @@
 //! (warm step iterations), `CB` (c_B), `MU` (initial μ), `CORR` (0: no correction MLP).
 use panoman_fit::fit::{FitOptions, warm_fit_options};
 use panoman_fit::ik::{IkConfig, IkState};
-use panoman_fit::{Constraints, Fitter, Rig, Sequence, ik_fit};
+use panoman_fit::{Constraints, FrameSolver, LbsRig, Tracking};
 use panoman_human::clip::{Clip, ClipConfig};
 use panoman_human::keypoints::KeypointsFile;
 use panoman_mesh::geom::{V3, norm, sub};
@@ -30,8 +30,7 @@ fn mean_mm(a: &[V3], b: &[V3]) -> f64 {
 fn held_out(
     data: &str,
     model: &Arc<PanoManModel>,
-    rig: &Rig,
-    fitter: &mut Fitter,
+    solver: &mut FrameSolver,
 ) -> Result<(), Box<dyn std::error::Error>> {
     let ds = panoman_human::dataset::Dataset::open(std::path::Path::new(data))?;
     let held: std::collections::BTreeSet<u32> = ds.held_out.iter().copied().collect();
@@ -46,7 +45,6 @@ fn held_out(
         step_retries: env("RET", d.step_retries as f64) as usize,
         ..d
     };
-    let ik = rig.ik_solver()?;
     let (mut pm, mut lbs, mut better, mut acc) = (0.0, 0.0, 0, 0);
     for i in 0..n {
         let r = rows[i * rows.len() / n];
@@ -59,8 +57,7 @@ fn held_out(
             keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(&truth)),
             ..Default::default()
         };
-        let (ikr, fit) =
-            panoman_fit::fit_frame(rig, &ik, fitter, &c, &IkConfig::default(), &opts, None)?;
+        let (ikr, fit) = solver.fit(&c, &IkConfig::default(), &opts, None)?;
         let (p, l) = (mean_mm(&fit.vertices, &truth), mean_mm(&ikr.posed, &truth));
         pm += p / n as f64;
         lbs += l / n as f64;
@@ -79,11 +76,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let model = Arc::new(PanoManModel::load(std::path::Path::new(&args[1]))?);
     let n_frames = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(72);
     let assets = panoman_human::assets::ensure_default()?;
-    let rig = Rig::load(&assets, &model)?;
-    let ik = rig.ik_solver()?;
-    let mut fitter = Fitter::new(model.clone())?;
+    let mut solver = FrameSolver::new(model.clone(), LbsRig::load(&assets, &model)?)?;
     if let Ok(data) = std::env::var("HELD") {
-        return held_out(&data, &model, &rig, &mut fitter);
+        return held_out(&data, &model, &mut solver);
     }
     let d = warm_fit_options();
     let warm = FitOptions {
@@ -102,8 +97,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         n_frames,
         n_keyframes: 5,
     })?;
+    let rig = solver.rig();
     let (_, truths) = clip.meshes(&rig.generator, &rig.map, rig.topology)?;
-    let mut seq = Sequence::new(FitOptions::default(), warm, IkConfig::default(), false);
+    let mut seq = Tracking::new(FitOptions::default(), warm, IkConfig::default(), false);
     let mut prev: Option<IkState> = None;
     let (mut pm, mut lbs, mut init_e) = (0.0, 0.0, 0.0);
     let (mut tried, mut acc, mut retried) = (0, 0, 0);
@@ -113,9 +109,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(truth)),
             ..Default::default()
         };
-        let (ikr, fit) = seq.fit_next(&rig, &ik, &mut fitter, &c)?;
-        let l = ik_fit(
-            &ik,
+        let (ikr, fit) = seq.fit_next(&mut solver, &c)?;
+        let l = solver.ik_fit(
             &c,
             &IkConfig {
                 initial_state: prev.clone(),

@@ -1,14 +1,12 @@
 //! [`Fitter`]: PanoMan (or the LBS baseline) fitted to [`Targets`], one frame at a time.
 use std::collections::BTreeMap;
-use std::sync::Arc;
-use std::time::Instant;
 
 use panoman_fit::fit::{FitOptions, GroupResidual, StageReport, keypoint_residuals};
-use panoman_fit::ik::{IkConfig, IkResult, IkSolver};
+use panoman_fit::ik::IkResult;
 use panoman_fit::quality::{IkAttempt, QualityOptions, Verdict};
 use panoman_fit::{
-    Constraints, IkIcpOptions, Rig, ShapeCalibration, ShapeCalibrationOptions, calibrate_shape,
-    fit_frame, ik_config_for_noise, ik_icp,
+    Constraints, FrameSolver, ShapeCalibration, ShapeCalibrationOptions, calibrate_shape,
+    ik_config_for_noise,
 };
 use panoman_human::assets;
 use panoman_human::params::{GeneratorParams, ShapeParams};
@@ -220,10 +218,7 @@ pub struct FitOutput {
 /// frames). `fit` takes `&mut self` (solver workspaces); make one per thread.
 pub struct Fitter {
     model: Model,
-    rig: Arc<Rig>,
-    ik: Arc<IkSolver>,
-    shell: panoman_fit::Fitter,
-    setup_seconds: f64,
+    solver: FrameSolver,
 }
 
 impl Fitter {
@@ -243,17 +238,11 @@ impl Fitter {
     /// # Errors
     /// See [`Fitter::new`].
     pub fn with_assets(model: &Model, assets: Option<&std::path::Path>) -> Result<Fitter> {
-        let t = Instant::now();
         let dir = assets.map_or_else(assets::default_dir, std::path::Path::to_path_buf);
-        let rig = Rig::for_model(model.inner(), || Ok(assets::ensure(&dir)?))?;
-        let ik = rig.ik_solver()?;
-        let shell = panoman_fit::Fitter::with_evaluator(model.evaluator())?;
+        let solver = FrameSolver::for_model(model.evaluator(), || Ok(assets::ensure(&dir)?))?;
         Ok(Fitter {
             model: model.clone(),
-            rig: Arc::new(rig),
-            ik: Arc::new(ik),
-            shell,
-            setup_seconds: t.elapsed().as_secs_f64(),
+            solver,
         })
     }
 
@@ -264,12 +253,23 @@ impl Fitter {
 
     /// Seconds [`Fitter::new`] took.
     pub fn setup_seconds(&self) -> f64 {
-        self.setup_seconds
+        self.solver.setup_seconds()
     }
 
     /// The rig's bone names (the keys of [`MotionData`] and of generator parameter files).
     pub fn bone_names(&self) -> &[String] {
-        self.rig.generator.bone_names()
+        self.solver.bone_names()
+    }
+
+    /// The frame solver (rig, IK, shell fitter) this fitter composes, for pipelines that
+    /// drive its stages themselves (the marker solver, the evaluation).
+    pub fn solver(&self) -> &FrameSolver {
+        &self.solver
+    }
+
+    /// The frame solver, mutably (its workspaces).
+    pub fn solver_mut(&mut self) -> &mut FrameSolver {
+        &mut self.solver
     }
 
     /// Reads a generator parameter file (e.g. a `params.json` of the LBS baseline or a mocap
@@ -278,7 +278,7 @@ impl Fitter {
     /// # Errors
     /// The file is unreadable or not a valid parameter file (naming it).
     pub fn read_motion(&self, path: &std::path::Path) -> Result<MotionData> {
-        let gp = self.rig.generator.read_params(path)?;
+        let gp = self.solver.rig().generator.read_params(path)?;
         Ok(self
             .bone_names()
             .iter()
@@ -308,7 +308,7 @@ impl Fitter {
             motion: req.motion.clone(),
             previous: None,
         };
-        self.shell.validate(&c)?;
+        self.solver.shell().validate(&c)?;
         Ok(c)
     }
 
@@ -322,43 +322,14 @@ impl Fitter {
         let ikc = ik_config_for_noise(req.keypoint_sigma);
         match req.method {
             Method::Lbs => {
-                let (r, attempts) = self.lbs(&c, &ikc, &req.quality(), None)?;
+                let (r, attempts) = self.solver.fit_lbs(&c, &ikc, &req.quality(), None)?;
                 Ok(self.lbs_output(&c, r, attempts, &req.quality()))
             }
             Method::PanoMan => {
-                let (r, fit) = fit_frame(
-                    &self.rig,
-                    &self.ik,
-                    &mut self.shell,
-                    &c,
-                    &ikc,
-                    &req.options(),
-                    None,
-                )?;
+                let (r, fit) = self.solver.fit(&c, &ikc, &req.options(), None)?;
                 Ok(self.panoman_output(&r, fit))
             }
         }
-    }
-
-    /// The LBS rig's IK (warm-started from `warm`) with the quality check and retries
-    /// ([`panoman_fit::pipeline::robust_ik`]), refined on the scan by skeletal ICP.
-    pub(crate) fn lbs(
-        &self,
-        c: &Constraints,
-        ikc: &IkConfig,
-        q: &QualityOptions,
-        warm: Option<&panoman_fit::ik::IkState>,
-    ) -> Result<(IkResult, Vec<IkAttempt>)> {
-        let cfg = IkConfig {
-            initial_state: warm.cloned(),
-            ..ikc.clone()
-        };
-        let (mut r, attempts) =
-            panoman_fit::pipeline::robust_ik(self.model.inner(), &self.ik, c, &cfg, q)?;
-        if c.points.is_some() {
-            r = ik_icp(&self.rig, &self.ik, c, ikc, &r, &IkIcpOptions::default())?.0;
-        }
-        Ok((r, attempts))
     }
 
     pub(crate) fn lbs_output(
@@ -438,15 +409,11 @@ impl Fitter {
             .collect::<Result<Vec<_>>>()?;
         let cfg = ik_config_for_noise(request.keypoint_sigma);
         Ok(calibrate_shape(
-            &self.ik,
+            self.solver.ik(),
             &c,
             &ShapeParams::default(),
             &cfg,
             opts,
         )?)
-    }
-
-    pub(crate) fn parts(&mut self) -> (&Rig, &IkSolver, &mut panoman_fit::Fitter) {
-        (&self.rig, &self.ik, &mut self.shell)
     }
 }

@@ -1,7 +1,7 @@
 //! [`Tracker`]: a sequence of frames fitted in order, for PanoMan and the LBS baseline.
 use panoman_fit::fit::{FitOptions, warm_fit_options};
 use panoman_fit::ik::{IkConfig, IkState};
-use panoman_fit::{Previous, Sequence, SequenceState, ik_config_for_noise};
+use panoman_fit::{Previous, Tracking, TrackingState, ik_config_for_noise};
 use panoman_model::model::Params;
 
 use crate::error::{Error, Result};
@@ -29,7 +29,7 @@ pub struct Tracker {
     fitter: Fitter,
     request: FitRequest,
     ik_start: IkStart,
-    sequence: Sequence,
+    sequence: Tracking,
     lbs_state: Option<IkState>,
     frames: usize,
     contacts: Option<ContactPrior>,
@@ -57,7 +57,7 @@ impl Tracker {
             quality: cold.quality.clone(),
             ..warm_fit_options()
         };
-        let sequence = Sequence::new(cold, warm, ik, ik_start == IkStart::Cold);
+        let sequence = Tracking::new(cold, warm, ik, ik_start == IkStart::Cold);
         Tracker {
             fitter,
             request,
@@ -243,7 +243,7 @@ impl Tracker {
         }
         self.frames = frames;
         self.lbs_state = lbs_state;
-        self.sequence.set_state(SequenceState {
+        self.sequence.set_state(TrackingState {
             frames: seq_frames,
             ik,
             previous,
@@ -273,13 +273,12 @@ impl Tracker {
                 // The PanoMan sequence's IK settings, so both methods share the IK.
                 let ikc = self.sequence.ik_config(&self.sequence.ik, warm.is_some());
                 let q = self.request.quality();
-                let (r, attempts) = self.fitter.lbs(&c, &ikc, &q, warm)?;
+                let (r, attempts) = self.fitter.solver().fit_lbs(&c, &ikc, &q, warm)?;
                 self.lbs_state = Some(r.state.clone());
                 self.fitter.lbs_output(&c, r, attempts, &q)
             }
             Method::PanoMan => {
-                let (rig, ik, shell) = self.fitter.parts();
-                let (r, fit) = self.sequence.fit_next(rig, ik, shell, &c)?;
+                let (r, fit) = self.sequence.fit_next(self.fitter.solver_mut(), &c)?;
                 self.fitter.panoman_output(&r, fit)
             }
         };

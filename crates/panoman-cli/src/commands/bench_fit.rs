@@ -191,8 +191,8 @@ fn people(model: &Model, a: &BenchArgs) -> Result<Vec<(Vec<V3>, Vec<V3>)>> {
     }
 }
 
-fn rig_of(model: &Model) -> Result<panoman_fit::Rig> {
-    Ok(panoman_fit::Rig::for_model(model.inner(), || {
+fn rig_of(model: &Model) -> Result<panoman_fit::LbsRig> {
+    Ok(panoman_fit::LbsRig::for_model(model.inner(), || {
         Ok(panoman_human::assets::ensure_default()?)
     })?)
 }

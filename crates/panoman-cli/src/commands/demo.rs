@@ -273,22 +273,13 @@ pub fn run(a: DemoArgs) -> Result<()> {
 
     println!("[9/9] fit the held-out person from its 133 TC keypoints (PanoMan and the LBS rig)");
     let kp = panoman_human::keypoints::KeypointsFile::from_all(&model.keypoints.evaluate(&target));
-    let rig = panoman_fit::Rig::load(&assets, &model)?;
-    let ik = rig.ik_solver()?;
-    let mut fitter = panoman_fit::Fitter::new(model.clone())?;
+    let mut solver =
+        panoman_fit::FrameSolver::new(model.clone(), panoman_fit::LbsRig::load(&assets, &model)?)?;
     let c = panoman_fit::Constraints {
         keypoints: kp,
         ..Default::default()
     };
-    let (ikr, fit) = panoman_fit::fit_frame(
-        &rig,
-        &ik,
-        &mut fitter,
-        &c,
-        &Default::default(),
-        &Default::default(),
-        None,
-    )?;
+    let (ikr, fit) = solver.fit(&c, &Default::default(), &Default::default(), None)?;
     let err = |x: &[[f64; 3]]| {
         x.iter()
             .zip(&target)

@@ -4,7 +4,7 @@
 //! the binary.
 
 use panoman_fit::fit::{FitOptions, keypoint_residuals};
-use panoman_fit::{Constraints, FitError, Fitter, Init, Rig, Sequence, fit_frame, ik_fit};
+use panoman_fit::{Constraints, FitError, FrameSolver, Init, LbsRig, Tracking};
 use panoman_human::keypoints::{KeypointsFile, keypoint_index};
 use panoman_mesh::geom::{V3, norm, sub};
 use panoman_model::model::PanoManModel;
@@ -20,12 +20,13 @@ fn trained() -> &'static (common::TempDir, PathBuf, PathBuf) {
     CELL.get_or_init(|| small_model("fit-test", 5))
 }
 
-/// The model and its LBS rig.
-fn model_and_rig(model_path: &Path) -> (PanoManModel, Rig) {
+/// The model and its frame solver (the LBS rig read from the assets).
+fn model_and_solver(model_path: &Path) -> (PanoManModel, FrameSolver) {
     let model = PanoManModel::load(model_path).unwrap();
     let assets = panoman_human::assets::ensure_default().unwrap();
-    let rig = Rig::load(&assets, &model).unwrap();
-    (model, rig)
+    let rig = LbsRig::load(&assets, &model).unwrap();
+    let solver = FrameSolver::new(std::sync::Arc::new(model.clone()), rig).unwrap();
+    (model, solver)
 }
 
 /// Held-out body-pose rows: (posed, rest) vertices.
@@ -50,20 +51,10 @@ fn held_out(data: &Path, n: usize) -> Vec<(Vec<V3>, Vec<V3>)> {
 
 /// One cold fit with the default IK and fit options.
 fn cold_fit(
-    rig: &Rig,
-    ik: &panoman_fit::ik::IkSolver,
-    fitter: &mut Fitter,
+    solver: &mut FrameSolver,
     c: &Constraints,
 ) -> panoman_fit::Result<(panoman_fit::ik::IkResult, panoman_fit::FitResult)> {
-    fit_frame(
-        rig,
-        ik,
-        fitter,
-        c,
-        &Default::default(),
-        &FitOptions::default(),
-        None,
-    )
+    solver.fit(c, &Default::default(), &FitOptions::default(), None)
 }
 
 fn mean_error(a: &[V3], b: &[V3]) -> f64 {
@@ -73,9 +64,7 @@ fn mean_error(a: &[V3], b: &[V3]) -> f64 {
 #[test]
 fn held_out_people_from_exact_keypoints() {
     let (_, data, model_path) = trained();
-    let (model, rig) = model_and_rig(model_path);
-    let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
+    let (model, mut solver) = model_and_solver(model_path);
     let cases = held_out(data, 3);
     let (mut e_pm, mut e_lbs) = (0.0, 0.0);
     for (truth, _) in &cases {
@@ -84,7 +73,7 @@ fn held_out_people_from_exact_keypoints() {
             keypoints: kp.clone(),
             ..Default::default()
         };
-        let (ikr, fit) = cold_fit(&rig, &ik, &mut fitter, &c).unwrap();
+        let (ikr, fit) = cold_fit(&mut solver, &c).unwrap();
         let (ep, el) = (
             mean_error(&fit.vertices, truth),
             mean_error(&ikr.posed, truth),
@@ -124,9 +113,7 @@ fn held_out_people_from_exact_keypoints() {
 #[test]
 fn cold_keypoint_stage_stops_after_one_step_only_within_its_tolerance() {
     let (_, data, model_path) = trained();
-    let (model, rig) = model_and_rig(model_path);
-    let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
+    let (model, mut solver) = model_and_solver(model_path);
     let (truth, _) = &held_out(data, 1)[0];
     let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
     let c = Constraints {
@@ -138,8 +125,7 @@ fn cold_keypoint_stage_stops_after_one_step_only_within_its_tolerance() {
             one_step_tolerance: tol,
             ..FitOptions::default()
         };
-        let (_, fit) =
-            fit_frame(&rig, &ik, &mut fitter, &c, &Default::default(), &opts, None).unwrap();
+        let (_, fit) = solver.fit(&c, &Default::default(), &opts, None).unwrap();
         let stage = fit
             .report
             .stages
@@ -192,24 +178,22 @@ fn sequence_follows_a_rigid_motion_and_propagates_the_placement() {
     use panoman_mesh::geom::{add, matmul, matvec};
     use panoman_mesh::rotation::axis_angle;
     let (_, data, model_path) = trained();
-    let (model, rig) = model_and_rig(model_path);
-    let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
+    let (model, mut solver) = model_and_solver(model_path);
     let (truth, _) = held_out(data, 1).remove(0);
     let r = axis_angle([0.2, 0.1, 1.0], 0.3);
     let t = [0.05, -0.02, 0.01];
     let moved: Vec<V3> = truth.iter().map(|&p| add(matvec(&r, p), t)).collect();
-    let mut seq = Sequence::default();
+    let mut seq = Tracking::default();
     let mut fits = Vec::new();
     for x in [&truth, &moved, &truth] {
         let c = Constraints {
             keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(x)),
             ..Default::default()
         };
-        fits.push(seq.fit_next(&rig, &ik, &mut fitter, &c).unwrap().1);
+        fits.push(seq.fit_next(&mut solver, &c).unwrap().1);
     }
     let (f0, f1, f2) = (&fits[0], &fits[1], &fits[2]);
-    let ml = fitter.mean_edge();
+    let ml = solver.shell().mean_edge();
     // The warm fit follows the motion to a fraction of an edge.
     let e1 = mean_error(
         &f1.vertices,
@@ -256,16 +240,14 @@ fn sequence_follows_a_rigid_motion_and_propagates_the_placement() {
 #[test]
 fn motion_data_constrains_the_body_coefficients() {
     let (_, data, model_path) = trained();
-    let (model, rig) = model_and_rig(model_path);
-    let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
+    let (model, mut solver) = model_and_solver(model_path);
     let (truth, _) = held_out(data, 1).remove(0);
     let c = Constraints {
         keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(&truth)),
         ..Default::default()
     };
-    let ikr = ik_fit(&ik, &c, &Default::default()).unwrap();
-    let init = panoman_fit::init_of(&ikr, &ik, rig.generator.bone_names());
+    let ikr = solver.ik_fit(&c, &Default::default()).unwrap();
+    let init = solver.init_of(&ikr);
     let theta = init.theta.clone().unwrap();
     let (bl, ba) = model
         .beta_from_theta(&|b: &str| theta.get(b).copied())
@@ -284,7 +266,10 @@ fn motion_data_constrains_the_body_coefficients() {
             .sum::<f64>()
             .sqrt()
     };
-    let free = fitter.fit(&c, &init, &FitOptions::default()).unwrap();
+    let free = solver
+        .shell_mut()
+        .fit(&c, &init, &FitOptions::default())
+        .unwrap();
     let d_free = dist(&body(&free.params));
     let with = Constraints {
         motion: Some(theta.clone()),
@@ -294,7 +279,7 @@ fn motion_data_constrains_the_body_coefficients() {
         motion_weight: 1e6,
         ..FitOptions::default()
     };
-    let held = fitter.fit(&with, &init, &opts).unwrap();
+    let held = solver.shell_mut().fit(&with, &init, &opts).unwrap();
     let d_held = dist(&body(&held.params));
     println!("|β_B − β_θ|: free {d_free:.3e}, τ_θ = 1e6 {d_held:.3e}");
     assert!(d_free > 1e-3, "{d_free}");
@@ -304,7 +289,8 @@ fn motion_data_constrains_the_body_coefficients() {
     assert!(res["body"].mean_mm < 10.0, "{res:?}");
     let mut bad = theta;
     bad.insert("upperarm01.L".into(), [f64::NAN, 0.0, 0.0]);
-    let e = fitter
+    let e = solver
+        .shell_mut()
         .fit(
             &Constraints {
                 motion: Some(bad),
@@ -328,9 +314,7 @@ fn motion_data_constrains_the_body_coefficients() {
 #[test]
 fn point_cloud_with_missing_part_and_noise_helps() {
     let (_, data, model_path) = trained();
-    let (model, rig) = model_and_rig(model_path);
-    let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
+    let (model, mut solver) = model_and_solver(model_path);
     let (truth, _) = &held_out(data, 1)[0];
     // A scan: every vertex of the front-facing 70 % (by height order of a plane cut),
     // displaced by 2 mm Gaussian noise (deterministic generator).
@@ -371,19 +355,23 @@ fn point_cloud_with_missing_part_and_noise_helps() {
         phenotype_polish: false,
         ..Default::default()
     };
-    let ikr = ik_fit(&ik, &c, &unpolished).unwrap();
+    let ikr = solver.ik_fit(&c, &unpolished).unwrap();
     let init = Init {
         posed: ikr.posed.clone(),
         rest: ikr.rest.clone(),
         theta: None,
         guide: None,
     };
-    let base = fitter.fit(&c, &init, &FitOptions::default()).unwrap();
+    let base = solver
+        .shell_mut()
+        .fit(&c, &init, &FitOptions::default())
+        .unwrap();
     let with_points = Constraints {
         points: Some((points, None)),
         ..c.clone()
     };
-    let fit = fitter
+    let fit = solver
+        .shell_mut()
         .fit(&with_points, &init, &FitOptions::default())
         .unwrap();
     let (e0, e1) = (
@@ -409,9 +397,7 @@ fn point_cloud_with_missing_part_and_noise_helps() {
 #[test]
 fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
     let (_, data, model_path) = trained();
-    let (model, rig) = model_and_rig(model_path);
-    let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
+    let (model, mut solver) = model_and_solver(model_path);
     let (truth, rest) = &held_out(data, 1)[0];
     let mut kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
     // The left wrist 1 m away from the elbow: unreachable.
@@ -421,8 +407,7 @@ fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
         keypoints: kp,
         ..Default::default()
     };
-    let (_, fit) =
-        cold_fit(&rig, &ik, &mut fitter, &c).expect("an unreachable target is not an error");
+    let (_, fit) = cold_fit(&mut solver, &c).expect("an unreachable target is not an error");
     assert!(fit.vertices.iter().flatten().all(|x| x.is_finite()));
     assert!(fit.report.keypoint_residuals["body"].max_mm > 100.0);
 
@@ -436,19 +421,28 @@ fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
         points: Some((Vec::new(), None)),
         ..c.clone()
     };
-    let e = fitter
+    let e = solver
+        .shell_mut()
         .fit(&empty, &init, &FitOptions::default())
         .unwrap_err();
     assert!(matches!(e, FitError::Invalid(_)) && e.to_string().contains("empty"));
     let nothing = Constraints::default();
-    assert!(fitter.fit(&nothing, &init, &FitOptions::default()).is_err());
+    assert!(
+        solver
+            .shell_mut()
+            .fit(&nothing, &init, &FitOptions::default())
+            .is_err()
+    );
     let wrong = Init {
         posed: truth[..10].to_vec(),
         rest: rest.clone(),
         theta: None,
         guide: None,
     };
-    let e = fitter.fit(&c, &wrong, &FitOptions::default()).unwrap_err();
+    let e = solver
+        .shell_mut()
+        .fit(&c, &wrong, &FitOptions::default())
+        .unwrap_err();
     assert!(e.to_string().contains("vertices"), "{e}");
 }
 
@@ -710,16 +704,14 @@ fn eval_small_configuration_writes_every_figure() {
 #[test]
 fn quality_check_retries_and_flags_an_impossible_keypoint() {
     let (_, data, model_path) = trained();
-    let (model, rig) = model_and_rig(model_path);
-    let ik = rig.ik_solver().unwrap();
-    let mut fitter = Fitter::new(std::sync::Arc::new(model.clone())).unwrap();
+    let (model, mut solver) = model_and_solver(model_path);
     let (truth, _) = &held_out(data, 1)[0];
     let mut kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
     let good = Constraints {
         keypoints: kp.clone(),
         ..Default::default()
     };
-    let (_, fit) = cold_fit(&rig, &ik, &mut fitter, &good).unwrap();
+    let (_, fit) = cold_fit(&mut solver, &good).unwrap();
     let v = &fit.report.verdict;
     assert!(v.converged, "{:?}", v.reason);
     assert!(v.reason.is_none() && !v.retried && v.ik_attempts.len() == 1);
@@ -734,7 +726,7 @@ fn quality_check_retries_and_flags_an_impossible_keypoint() {
         keypoints: kp,
         ..Default::default()
     };
-    let (_, fit) = cold_fit(&rig, &ik, &mut fitter, &bad).unwrap();
+    let (_, fit) = cold_fit(&mut solver, &bad).unwrap();
     let v = &fit.report.verdict;
     assert!(!v.converged);
     let reason = v.reason.as_deref().unwrap();

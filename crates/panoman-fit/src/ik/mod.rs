@@ -196,7 +196,7 @@ pub struct IkConfig {
     /// Let elbows and knees reach full extension (a straight limb and a few degrees beyond:
     /// [`ik_extension_limit`]) where the sampler's ranges stop 8° (elbow) and 10° (knee)
     /// short of straight (default false; it also lowers those bounds of the wide ranges).
-    /// Warm-started frames of a sequence use it ([`crate::pipeline::Sequence::ik_config`]): a
+    /// Warm-started frames of a sequence use it ([`crate::frame::Tracking::ik_config`]): a
     /// cold solve that needs a straight limb reaches it through the range continuation of
     /// [`crate::pipeline::ik_fit`], and the frames after it must not be held inside the
     /// sampler's range.

@@ -8,7 +8,7 @@ impl MarkerSolver {
     /// another active marker is on its rig bone or on a bone below it.
     pub fn observable(&self, map: &MarkerMap, active: &[bool]) -> Vec<bool> {
         let names = self.bone_names();
-        let parents = self.rig.generator.bone_parents();
+        let parents = self.solver.rig().generator.bone_parents();
         let bone = |i: usize| names.iter().position(|n| *n == map.markers[i].bone);
         let below = |b: usize, mut c: usize| loop {
             if c == b {

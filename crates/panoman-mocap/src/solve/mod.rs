@@ -37,10 +37,8 @@ use std::time::Instant;
 
 use faer::linalg::solvers::Solve;
 use panoman::Method;
-use panoman_fit::ik::{
-    IkConfig, IkResult, IkSolver, IkState, IkTargets, PointTarget, TemporalPrior,
-};
-use panoman_fit::{Constraints, FitOptions, Previous, VertexHandle};
+use panoman_fit::ik::{IkConfig, IkResult, IkState, IkTargets, PointTarget, TemporalPrior};
+use panoman_fit::{Constraints, FitOptions, FrameSolver, Previous, VertexHandle};
 use panoman_human::params::{GeneratorParams, ShapeParams};
 use panoman_mesh::align::rigid_align;
 use panoman_mesh::geom::{V3, add, dot, matvec, norm, scale, sub};
@@ -368,9 +366,7 @@ fn finite(p: &V3) -> bool {
 /// The solver of one model: the rig, its IK, PanoMan's shell fitter and the rest template.
 pub struct MarkerSolver {
     model: panoman::Model,
-    rig: panoman_fit::Rig,
-    ik: IkSolver,
-    shell: panoman_fit::Fitter,
+    solver: FrameSolver,
     template: RestTemplate,
     /// Options.
     pub options: SolveOptions,
@@ -414,26 +410,21 @@ impl MarkerSolver {
                 "forearm_roll_deg (--forearm-roll-deg) = {roll} must be in [0, 180]"
             )));
         }
-        let rig = panoman_fit::Rig::for_model(model.inner(), || {
+        let solver = FrameSolver::for_model(model.evaluator(), || {
             Err(panoman_fit::FitError::Invalid(
                 "the model file has no embedded LBS rig (run `panoman embed-rig`)".into(),
             ))
         })
         .map_err(|e| inv(e.to_string()))?;
-        let ik = rig.ik_solver().map_err(|e| inv(e.to_string()))?;
-        let shell = panoman_fit::Fitter::with_evaluator(model.evaluator())
-            .map_err(|e| inv(e.to_string()))?;
         let template = RestTemplate::new(
-            &rig,
+            solver.rig(),
             model.faces(),
             model.topology_name(),
             &ShapeParams::default(),
         )?;
         Ok(MarkerSolver {
             model: model.clone(),
-            rig,
-            ik,
-            shell,
+            solver,
             template,
             options,
         })
@@ -446,7 +437,7 @@ impl MarkerSolver {
 
     /// The rig's bone names.
     pub fn bone_names(&self) -> &[String] {
-        self.rig.generator.bone_names()
+        self.solver.bone_names()
     }
 
     fn faces(&self) -> &[[u32; 3]] {
@@ -566,7 +557,11 @@ impl MarkerSolver {
                     .then_some(self.options.forearm_roll_deg),
                 ..IkConfig::default()
             };
-            let r = self.ik.solve_with_points(&kp, &points, &cfg).map_err(inv)?;
+            let r = self
+                .solver
+                .ik()
+                .solve_with_points(&kp, &points, &cfg)
+                .map_err(inv)?;
             state = r.state.clone();
             cur.clone_from(&r.posed);
             placed = place(&state);
@@ -605,8 +600,13 @@ impl MarkerSolver {
     fn rest_mesh(&self, phen: [f64; 6]) -> Result<Vec<V3>> {
         let mut st = IkState::rest(self.bone_names().len(), &ShapeParams::default());
         st.phenotype = phen;
-        let shape = self.ik.shape_params(&st, &ShapeParams::default());
-        let t = RestTemplate::new(&self.rig, self.faces(), &self.template.topology, &shape)?;
+        let shape = self.solver.ik().shape_params(&st, &ShapeParams::default());
+        let t = RestTemplate::new(
+            self.solver.rig(),
+            self.faces(),
+            &self.template.topology,
+            &shape,
+        )?;
         Ok(t.vertices)
     }
 }

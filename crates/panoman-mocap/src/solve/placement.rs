@@ -143,7 +143,7 @@ impl MarkerSolver {
     ) -> Vec<Option<PosePlacement>> {
         let faces = self.faces();
         let names = self.bone_names();
-        let parents = self.rig.generator.bone_parents();
+        let parents = self.solver.rig().generator.bone_parents();
         let lambda = self.options.pose_placement_ridge;
         map.markers
             .iter()

@@ -70,7 +70,7 @@ impl MarkerSolver {
         cal: &Calibration,
         active: &[bool],
     ) -> Result<Vec<SolvedFrame>> {
-        // On a worker of rayon's pool, as `panoman_fit::fit_frame` runs a frame: the frames'
+        // On a worker of rayon's pool, as `panoman_fit::FrameSolver::fit` runs a frame: the frames'
         // many small fork-joins start from a worker.
         let mut res = None;
         rayon::scope(|_| res = Some(self.track_here(seq, frames, cal, active)));
@@ -272,10 +272,9 @@ impl MarkerSolver {
             previous,
             ..Default::default()
         };
-        let init = panoman_fit::init_of(&ik.result, &self.ik, self.rig.generator.bone_names());
         let fit = self
-            .shell
-            .fit(&c, &init, &opts)
+            .solver
+            .fit_from_ik(&c, &ik.result, &opts)
             .map_err(|e| MocapError::Invalid {
                 what: format!("shell fit: {e}"),
             })?;

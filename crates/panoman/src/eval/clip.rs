@@ -2,7 +2,7 @@
 //! frame (warm-started from its own previous frame).
 use panoman_fit::fit::warm_fit_options;
 use panoman_fit::ik::{IkConfig, IkState};
-use panoman_fit::{Constraints, Sequence, ik_fit};
+use panoman_fit::{Constraints, Tracking, ik_fit};
 use panoman_human::clip::{Clip, ClipConfig};
 use panoman_human::keypoints::KeypointsFile;
 use serde::{Deserialize, Serialize};
@@ -50,8 +50,8 @@ pub(crate) fn run(
         n_frames: preset.clip_frames,
         n_keyframes: preset.clip_keyframes,
     })?;
-    let (_, truths) = clip.meshes(&b.rig.generator, &b.rig.map, b.rig.topology)?;
-    let mut seq = Sequence::new(b.opts.clone(), warm_fit_options(), b.ikc.clone(), false);
+    let (_, truths) = clip.meshes(&b.rig().generator, &b.rig().map, b.rig().topology)?;
+    let mut seq = Tracking::new(b.opts.clone(), warm_fit_options(), b.ikc.clone(), false);
     let mut prev_lbs: Option<IkState> = None;
     let mut frames: Vec<ClipFrame> = Vec::new();
     let mut warm_times = Vec::new();
@@ -63,10 +63,10 @@ pub(crate) fn run(
             keypoints: KeypointsFile::from_all(&b.model.inner().keypoints.evaluate(truth)),
             ..Default::default()
         };
-        let (ikr, fit) = seq.fit_next(&b.rig, &b.ik, &mut b.fitter, &c)?;
+        let (ikr, fit) = seq.fit_next(&mut b.solver, &c)?;
         // The LBS baseline's frames use the PanoMan sequence's IK settings.
         let lbs = ik_fit(
-            &b.ik,
+            b.solver.ik(),
             &c,
             &IkConfig {
                 initial_state: prev_lbs.clone(),

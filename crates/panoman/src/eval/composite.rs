@@ -1,7 +1,7 @@
 //! Composite motion (Fig. 16): the body of one fit, the expression of a second and the
 //! gesture of a third, posed from the mixed β blocks.
+use panoman_fit::Constraints;
 use panoman_fit::fit::FitResult;
-use panoman_fit::{Constraints, fit_frame};
 use panoman_human::keypoints::KeypointsFile;
 use panoman_model::model::Params;
 
@@ -19,7 +19,7 @@ fn fit_row(b: &mut Bench, r: usize) -> Result<FitResult> {
         keypoints: KeypointsFile::from_all(&b.model.inner().keypoints.evaluate(&truth)),
         ..Default::default()
     };
-    Ok(fit_frame(&b.rig, &b.ik, &mut b.fitter, &c, &b.ikc, &b.opts, None)?.1)
+    Ok(b.solver.fit(&c, &b.ikc, &b.opts, None)?.1)
 }
 
 /// `body` with the face blocks of `face` and the hand blocks of `hands` (the blocks they

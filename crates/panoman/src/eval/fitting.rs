@@ -3,7 +3,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use panoman_fit::fit::{FitResult, keypoint_residuals};
-use panoman_fit::{Constraints, fit_frame, ik_config_for_noise};
+use panoman_fit::{Constraints, ik_config_for_noise};
 use panoman_human::keypoints::KeypointsFile;
 use panoman_mesh::geom::V3;
 
@@ -112,7 +112,7 @@ pub(crate) fn run(
                 b.ikc.clone()
             };
             let opts = if is_noisy { &noisy_opts } else { &b.opts };
-            let (ikr, fit) = fit_frame(&b.rig, &b.ik, &mut b.fitter, &c, &ikc, opts, None)?;
+            let (ikr, fit) = b.solver.fit(&c, &ikc, opts, None)?;
             let errors = PerMethod {
                 lbs: part_errors(&ikr.posed, &truth, &b.groups),
                 panoman: part_errors(&fit.vertices, &truth, &b.groups),

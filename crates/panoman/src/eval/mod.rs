@@ -14,8 +14,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use panoman_fit::fit::FitOptions;
-use panoman_fit::ik::{IkConfig, IkSolver};
-use panoman_fit::{Fitter as ShellFitter, Rig};
+use panoman_fit::ik::IkConfig;
+use panoman_fit::{FrameSolver, LbsRig};
 use panoman_human::assets::AssetDir;
 use panoman_human::dataset::Dataset;
 use panoman_human::regions::Regions;
@@ -236,9 +236,7 @@ pub(crate) struct Bench {
     pub(crate) regions: Regions,
     pub(crate) groups: metrics::Groups,
     pub(crate) body_regions: metrics::BodyRegions,
-    pub(crate) rig: Rig,
-    pub(crate) ik: IkSolver,
-    pub(crate) fitter: ShellFitter,
+    pub(crate) solver: FrameSolver,
     pub(crate) opts: FitOptions,
     pub(crate) ikc: IkConfig,
 }
@@ -270,23 +268,25 @@ impl Bench {
         };
         let groups = metrics::Groups::of(&regions);
         // The rig from the assets (as the figures were first measured), not the embedded one.
-        let rig = Rig::load(assets, &pm)?;
+        let rig = LbsRig::load(assets, &pm)?;
         let body_regions =
             metrics::BodyRegions::of_rig(&rig.generator, &rig.map, rig.topology, &regions);
-        let ik = rig.ik_solver()?;
-        let fitter = ShellFitter::new(pm)?;
+        let solver = FrameSolver::new(pm, rig)?;
         Ok(Bench {
             model,
             ds,
             regions,
             groups,
             body_regions,
-            rig,
-            ik,
-            fitter,
+            solver,
             opts: FitOptions::default(),
             ikc: IkConfig::default(),
         })
+    }
+
+    /// The LBS rig (read from the assets).
+    pub(crate) fn rig(&self) -> &LbsRig {
+        self.solver.rig()
     }
 
     /// Rows of the held-out identities of `kind` (1 body, 2 face, 3 hands), in row order.

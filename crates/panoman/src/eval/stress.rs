@@ -15,9 +15,9 @@
 //!
 //! The cases are drawn from their own random streams ([`STRESS_DOMAIN`]), so they are new
 //! draws for every model; the same seed gives the same cases.
+use panoman_fit::Constraints;
 use panoman_fit::fit::{FitResult, keypoint_residuals};
 use panoman_fit::twist::LimbSegment;
-use panoman_fit::{Constraints, fit_frame};
 use panoman_human::keypoints::{KeypointGroup, KeypointsFile};
 use panoman_human::params::ShapeParams;
 use panoman_human::phenotype::Phenotype;
@@ -256,7 +256,7 @@ fn posed_keypoints(
     theta: &Theta,
 ) -> (Vec<V3>, Vec<V3>) {
     let posed = id.pose(&bones.pose_params(theta));
-    let x = b.rig.map.map(b.rig.topology, &posed.vertices);
+    let x = b.rig().map.map(b.rig().topology, &posed.vertices);
     (b.model.inner().keypoints.evaluate(&x), x)
 }
 
@@ -330,7 +330,7 @@ fn place_hand(
 
 /// The contact cases: the left hand on the head and the right hand under the chin.
 fn contact_specs(b: &Bench, preset: &EvalPreset, seed: u64) -> Result<Vec<Spec>> {
-    let g = b.rig.generator.clone();
+    let g = b.rig().generator.clone();
     let bones = BoneMap::new(g.bone_names())?;
     let mut out = Vec::new();
     for (i, name) in ["hand_on_head", "hand_at_chin"]
@@ -479,10 +479,10 @@ fn run_case(
     spec: &Spec,
     cfg: &super::EvalConfig,
 ) -> Result<(StressCase, MeshTriple)> {
-    let g = b.rig.generator.clone();
+    let g = b.rig().generator.clone();
     let bones = BoneMap::new(g.bone_names())?;
     let id = g.identity(&spec.shape)?;
-    let rest = b.rig.map.map(b.rig.topology, id.rest_vertices());
+    let rest = b.rig().map.map(b.rig().topology, id.rest_vertices());
     let (kp, truth) = posed_keypoints(b, &id, &bones, &spec.theta);
     let mut keypoints = KeypointsFile::from_points(&kp)?;
     if cfg.stress_without_feet {
@@ -493,7 +493,7 @@ fn run_case(
         ..Default::default()
     };
     let t = std::time::Instant::now();
-    let (ikr, fit) = fit_frame(&b.rig, &b.ik, &mut b.fitter, &c, &b.ikc, &b.opts, None)?;
+    let (ikr, fit) = b.solver.fit(&c, &b.ikc, &b.opts, None)?;
     let seconds = t.elapsed().as_secs_f64();
     let errors: PerMethod<PartErrors> = PerMethod {
         lbs: part_errors(&ikr.posed, &truth, &b.groups),

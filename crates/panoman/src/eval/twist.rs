@@ -1,9 +1,9 @@
 //! The twist study (Fig. 1, 13): a limb twisted about its bone by the LBS rig, fitted from
 //! its keypoints by the LBS rig and by PanoMan; cross-section radii and volume against rest.
+use panoman_fit::Constraints;
 use panoman_fit::fit::keypoint_residuals;
 use panoman_fit::ik::IkConfig;
 use panoman_fit::twist::LimbSegment;
-use panoman_fit::{Constraints, ik_fit, init_of};
 use panoman_human::generator::Identity;
 use panoman_human::keypoints::KeypointsFile;
 use panoman_human::params::{PoseParams, ShapeParams};
@@ -111,9 +111,9 @@ pub(crate) fn run(
     preset: &EvalPreset,
     progress: &mut dyn FnMut(EvalProgress),
 ) -> Result<TwistRun> {
-    let g = b.rig.generator.clone();
+    let g = b.rig().generator.clone();
     let id = g.identity(&ShapeParams::default())?;
-    let rest = b.rig.map.map(b.rig.topology, id.rest_vertices());
+    let rest = b.rig().map.map(b.rig().topology, id.rest_vertices());
     let p = RestPerson {
         names: g.bone_names().to_vec(),
         keypoints: b.model.inner().keypoints.evaluate(&rest),
@@ -185,7 +185,7 @@ fn twist_row(
     };
     pose.euler_deg[s.bone][1] = ang;
     let posed = p.id.pose(&pose);
-    let truth = b.rig.map.map(b.rig.topology, &posed.vertices);
+    let truth = b.rig().map.map(b.rig().topology, &posed.vertices);
     let c = Constraints {
         keypoints: KeypointsFile::from_all(&b.model.inner().keypoints.evaluate(&truth)),
         ..Default::default()
@@ -197,9 +197,8 @@ fn twist_row(
         initial_shape: Some(ShapeParams::default()),
         ..b.ikc.clone()
     };
-    let ikr = ik_fit(&b.ik, &c, &ik_known)?;
-    let init = init_of(&ikr, &b.ik, &p.names);
-    let fit = b.fitter.fit(&c, &init, &b.opts)?;
+    let ikr = b.solver.ik_fit(&c, &ik_known)?;
+    let fit = b.solver.fit_from_ik(&c, &ikr, &b.opts)?;
     let pm = b.model.inner();
     let kres = |x: &[V3]| {
         let r = keypoint_residuals(pm, &c.keypoints, x);
