@@ -246,9 +246,8 @@ pub fn track_generated(
         return Err(inv("no frames to track"));
     }
     let rig = model
-        .inner()
-        .rig
-        .clone()
+        .rig()
+        .cloned()
         .ok_or_else(|| inv("the model carries no rig (see `panoman embed-rig`)"))?;
     let topology = model
         .output_topology()

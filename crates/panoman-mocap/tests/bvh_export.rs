@@ -9,13 +9,7 @@ use panoman_mocap::retarget::CmuRetarget;
 #[test]
 fn exported_bvh_reproduces_the_rig_joints() {
     let model = panoman::Model::load(panoman::training::small_model(None).unwrap()).unwrap();
-    let g = model
-        .inner()
-        .rig
-        .as_ref()
-        .expect("embedded rig")
-        .generator
-        .clone();
+    let g = model.rig().expect("embedded rig").generator.clone();
     let mut shape = ShapeParams::default();
     shape.phenotype.proportions = 0.7;
     let identity = g.identity(&shape).unwrap();

@@ -24,9 +24,8 @@ fn excerpt_is_tracked_by_both_methods() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/01_01_head.bvh");
     let bvh = read_bvh(&path).unwrap().scaled(CMU_UNIT_M);
     let rig = model
-        .inner()
-        .rig
-        .clone()
+        .rig()
+        .cloned()
         .expect("the small model carries its rig");
     let shape = ShapeParams::default();
     let identity = rig.generator.identity(&shape).unwrap();
@@ -90,7 +89,7 @@ fn sole_points_and_the_foot_keypoints_in_tracking() {
     use panoman::sole_points;
     let model = panoman::Model::load(panoman::training::small_model(None).expect("small model"))
         .expect("loads");
-    let rig = model.inner().rig.clone().expect("rig");
+    let rig = model.rig().cloned().expect("rig");
     let topology = model.output_topology().unwrap();
     let id = rig.generator.identity(&ShapeParams::default()).unwrap();
     let rest = rig
@@ -165,7 +164,7 @@ fn contact_prior_tracks_the_excerpt() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/01_01_head.bvh");
     let bvh = read_bvh(&path).unwrap().scaled(CMU_UNIT_M);
     let shape = ShapeParams::default();
-    let rig = model.inner().rig.clone().unwrap();
+    let rig = model.rig().cloned().unwrap();
     let id = rig.generator.identity(&shape).unwrap();
     let rt = CmuRetarget::calibrate(&id, &shape, &bvh, 0).unwrap();
     let opts = TrackOptions {

@@ -279,7 +279,7 @@ impl PyModel {
     #[getter]
     fn keypoint_rows<'py>(&self, py: Python<'py>) -> KeypointRows<'py> {
         let (mut k, mut v, mut w) = (Vec::new(), Vec::new(), Vec::new());
-        for (i, row) in self.inner.inner().keypoints.rows.iter().enumerate() {
+        for (i, row) in self.inner.keypoint_rows().iter().enumerate() {
             for &(vert, weight) in row {
                 k.push(i as i64);
                 v.push(i64::from(vert));

@@ -129,10 +129,7 @@ impl PyParams {
     fn read(py: Python<'_>, path: &Bound<'_, PyAny>, model: &PyModel) -> PyResult<Self> {
         let path = path_of(path)?;
         let m = model.inner.clone();
-        run(py, move || {
-            panoman::Params::read(&path, m.inner()).map_err(panoman::Error::from)
-        })
-        .map(|inner| PyParams { inner })
+        run(py, move || m.read_params(&path)).map(|inner| PyParams { inner })
     }
 
     /// Writes these parameters as `params.json` (`docs/formats.md`).

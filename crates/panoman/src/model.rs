@@ -162,8 +162,8 @@ impl Model {
         })
     }
 
-    /// The underlying model data (for the pipeline crates).
-    pub fn inner(&self) -> &Arc<PanoManModel> {
+    /// The underlying model data (the library's own experiments and fitter).
+    pub(crate) fn inner(&self) -> &Arc<PanoManModel> {
         &self.shared.model
     }
 
@@ -281,6 +281,59 @@ impl Model {
     /// Whether the file carries the LBS rig (fits need no asset tree).
     pub fn has_rig(&self) -> bool {
         self.inner().rig.is_some()
+    }
+
+    /// The LBS rig embedded in the model file (the generator and its map onto the template
+    /// topologies), if any; [`crate::Generator::from_model`] wraps it.
+    pub fn rig(&self) -> Option<&Arc<panoman_human::rigfile::RigData>> {
+        self.inner().rig.as_ref()
+    }
+
+    /// Whether the model has the correction MLP `R(β_B)`.
+    pub fn has_correction(&self) -> bool {
+        self.inner().correction.is_some()
+    }
+
+    /// Whether the model has the motion MLP θ → β_B (motion data in fits).
+    pub fn has_motion(&self) -> bool {
+        self.inner().motion.is_some()
+    }
+
+    /// The template topology's hash (`Topology::hash_hex`), which datasets and keypoint rows
+    /// record.
+    pub fn topology_hash(&self) -> &str {
+        &self.inner().topology_hash
+    }
+
+    /// The observed range `[lo, hi]` of each coefficient of `block` over the training rows.
+    pub fn beta_range(&self, block: BlockName) -> &[[f32; 2]] {
+        &self.inner().blocks[block as usize].beta_range
+    }
+
+    /// The shape coefficients α of a rest mesh: its projection onto the shape PCA (PanoMan
+    /// Eq. 2; `(V, 3)` metres in, one value per shape component out).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] if `rest` has the wrong count or non-finite values.
+    pub fn project_shape(&self, rest: &[V3]) -> Result<Vec<f64>> {
+        self.check_vertices("rest mesh", rest)?;
+        let flat: Vec<f64> = rest.iter().flatten().copied().collect();
+        Ok(self.inner().shape.project(&flat))
+    }
+
+    /// Reads a `params.json` file and checks it against this model (sizes, block names,
+    /// finite values; `docs/formats.md`).
+    ///
+    /// # Errors
+    /// The file is unreadable or malformed, or does not fit the model (naming the file).
+    pub fn read_params(&self, path: impl AsRef<Path>) -> Result<Params> {
+        Ok(Params::read(path.as_ref(), self.inner())?)
+    }
+
+    /// The keypoints as sparse rows of vertices: keypoint `k = Σ weight · x[vertex]` over
+    /// `rows[k]`'s `(vertex, weight)` entries, in [`Model::keypoint_names`] order.
+    pub fn keypoint_rows(&self) -> &[Vec<(u32, f64)>] {
+        &self.inner().keypoints.rows
     }
 
     /// The names of the model's keypoints (TC-133 order: 15 body, 6 feet, 70 face (iBUG-68 +

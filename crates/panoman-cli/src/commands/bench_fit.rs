@@ -38,20 +38,18 @@ fn random_params(model: &Model, seed: u64) -> Vec<Params> {
                     (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
                 })
                 .collect(),
-            beta: model
-                .inner()
-                .blocks
-                .iter()
+            beta: panoman::BlockName::ALL
+                .into_iter()
                 .map(|b| {
-                    let beta = b
-                        .beta_range
+                    let beta = model
+                        .beta_range(b)
                         .iter()
                         .map(|r| {
                             let (lo, hi) = (f64::from(r[0]), f64::from(r[1]));
                             0.5 * (lo + hi) + 0.25 * (hi - lo) * (2.0 * u() - 1.0)
                         })
                         .collect();
-                    (b.name.clone(), beta)
+                    (b.as_str().to_string(), beta)
                 })
                 .collect(),
             ..Default::default()
@@ -83,7 +81,7 @@ pub(crate) fn run(rep: &Reporter, a: &BenchArgs, path: &Path, runs: usize) -> Re
         );
     }
     let params = match &a.pose_params {
-        Some(p) => vec![Params::read(p, model.inner())?],
+        Some(p) => vec![model.read_params(p)?],
         None => random_params(&model, a.seed ^ 0x5eed),
     };
     if rep.wants("pose") {
@@ -145,7 +143,7 @@ fn people(model: &Model, a: &BenchArgs) -> Result<Vec<(Vec<V3>, Vec<V3>)>> {
     let n = a.people.max(1);
     if let Some(data) = &a.data {
         let ds = Dataset::open(data)?;
-        if ds.topology_hash != model.inner().topology_hash {
+        if ds.topology_hash != model.topology_hash() {
             return Err(anyhow!(
                 "{}: the dataset's topology is not the model's",
                 data.display()
@@ -176,7 +174,7 @@ fn people(model: &Model, a: &BenchArgs) -> Result<Vec<(Vec<V3>, Vec<V3>)>> {
             })
             .collect()
     } else {
-        let rig = rig_of(model)?;
+        let (rig, topology) = rig_of(model)?;
         (0..n as u64)
             .map(|i| {
                 let clip = Clip::generate(&ClipConfig {
@@ -184,17 +182,27 @@ fn people(model: &Model, a: &BenchArgs) -> Result<Vec<(Vec<V3>, Vec<V3>)>> {
                     n_frames: 2,
                     n_keyframes: 2,
                 })?;
-                let (rest, mut m) = clip.meshes(&rig.generator, &rig.map, rig.topology)?;
+                let (rest, mut m) = clip.meshes(&rig.generator, &rig.map, topology)?;
                 Ok((m.swap_remove(0), rest))
             })
             .collect()
     }
 }
 
-fn rig_of(model: &Model) -> Result<panoman_fit::LbsRig> {
-    Ok(panoman_fit::LbsRig::for_model(model.inner(), || {
-        Ok(panoman_human::assets::ensure_default()?)
-    })?)
+/// The model's LBS rig (embedded, else from the assets) and its topology.
+fn rig_of(
+    model: &Model,
+) -> Result<(
+    std::sync::Arc<panoman_human::rigfile::RigData>,
+    panoman::OutputTopology,
+)> {
+    let rig = match model.rig() {
+        Some(r) => r.clone(),
+        None => std::sync::Arc::new(panoman_human::rigfile::RigData::from_assets(
+            &panoman_human::assets::ensure_default()?,
+        )?),
+    };
+    Ok((rig, model.output_topology()?))
 }
 
 /// Writes points as an ASCII PLY point cloud (readable by `panoman fit --points`).
@@ -293,13 +301,13 @@ fn run_fits(
     if rep.wants("track_warm")
         && let Some(f) = fitter.take()
     {
-        let rig = rig_of(model)?;
+        let (rig, topology) = rig_of(model)?;
         let clip = Clip::generate(&ClipConfig {
             seed: a.seed,
             n_frames: a.clip_frames.max(2),
             n_keyframes: 5.min(a.clip_frames.max(2)),
         })?;
-        let (_, truths) = clip.meshes(&rig.generator, &rig.map, rig.topology)?;
+        let (_, truths) = clip.meshes(&rig.generator, &rig.map, topology)?;
         let frames_dir = dir.join("clip");
         std::fs::create_dir_all(&frames_dir)?;
         let mut tracker = Tracker::with_fitter(f, FitRequest::default(), IkStart::Warm);

@@ -67,7 +67,7 @@ pub fn run(a: ExportArgs) -> Result<()> {
         (Some(dir), _, _) => Sequence::from_dir(dir)?,
         (None, Some(p), Some(m)) => {
             let model = panoman::Model::load(m)?;
-            let params = panoman::Params::read(p, model.inner())?;
+            let params = model.read_params(p)?;
             let v = model
                 .pose(&params, panoman::Correction::Apply)
                 .map_err(|e| anyhow::anyhow!("{}", e.in_file(p)))?;

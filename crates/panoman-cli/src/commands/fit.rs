@@ -5,7 +5,7 @@ use anyhow::{Context, Result, anyhow};
 use clap::{Args, ValueEnum};
 use panoman::feet::{ContactOptions, ContactPrior, FootAnchors};
 use panoman::{
-    FitOutput, FitReport, FitRequest, Fitter, IkStart, Method, Model, Params, Targets, Tracker,
+    FitOutput, FitReport, FitRequest, Fitter, IkStart, Method, Model, Targets, Tracker,
     read_handles, read_points,
 };
 use panoman_fit::fit::FitOptions;
@@ -233,7 +233,7 @@ fn request(a: &FitArgs, fitter: &Fitter, model: &Model) -> Result<FitRequest> {
         ..Default::default()
     };
     if let Some(p) = &a.params {
-        req.fixed = Some(Params::read(p, model.inner())?);
+        req.fixed = Some(model.read_params(p)?);
     }
     if let Some(p) = &a.motion {
         if a.baseline.is_some() {
@@ -241,7 +241,7 @@ fn request(a: &FitArgs, fitter: &Fitter, model: &Model) -> Result<FitRequest> {
                 "--motion constrains PanoMan's β_B; it does not apply to --baseline lbs"
             ));
         }
-        if model.inner().motion.is_none() {
+        if !model.has_motion() {
             return Err(anyhow!(
                 "{}: motion data given, but the model {} has no motion MLP",
                 p.display(),

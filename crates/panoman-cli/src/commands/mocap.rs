@@ -194,7 +194,7 @@ fn generator_of(
     Ok(match model {
         Some(m) => {
             let model = panoman::Model::load(m)?;
-            match &model.inner().rig {
+            match model.rig() {
                 Some(r) => r.generator.clone(),
                 None => bail!("{}: the model has no embedded rig", m.display()),
             }
@@ -321,7 +321,7 @@ fn run_retarget(a: RetargetArgs) -> Result<()> {
         }
     };
     let generator = match &track {
-        Some((.., model)) => match &model.inner().rig {
+        Some((.., model)) => match model.rig() {
             Some(r) => r.generator.clone(),
             None => bail!("the model has no embedded rig (see `panoman embed-rig`)"),
         },

@@ -110,7 +110,7 @@ pub fn run(a: MocapEvalArgs) -> Result<()> {
         files.push((need(c.file)?, c.vsk.map(need).transpose()?));
     }
     let model = panoman::Model::load(&a.model)?;
-    if model.inner().rig.is_none() {
+    if !model.has_rig() {
         bail!(
             "{}: the model has no embedded rig (see `panoman embed-rig`)",
             a.model.display()
@@ -291,7 +291,7 @@ fn cmu_tracking(
 ) -> Result<serde_json::Value> {
     use panoman_mocap::bvh::{CMU_UNIT_M, read_bvh};
     let bvh = read_bvh(bvh_path)?.scaled(CMU_UNIT_M);
-    let Some(rig) = &model.inner().rig else {
+    let Some(rig) = model.rig() else {
         bail!("the model has no embedded rig");
     };
     eprintln!("CMU 01_01: retargeting …");

@@ -2,7 +2,7 @@
 
 use anyhow::Result;
 use clap::Args;
-use panoman::{Correction, Model, Params};
+use panoman::{Correction, Model};
 use panoman_mesh::{TriMesh, io};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -30,7 +30,7 @@ pub struct PoseArgs {
 /// Runs `panoman pose`.
 pub fn run(a: PoseArgs) -> Result<()> {
     let model = Model::load(&a.model)?;
-    let params = Params::read(&a.params, model.inner())?;
+    let params = model.read_params(&a.params)?;
     let corr = if a.no_correction {
         Correction::Skip
     } else {
@@ -42,12 +42,11 @@ pub fn run(a: PoseArgs) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("{}", e.in_file(&a.params)))?;
     let ms = t.elapsed().as_secs_f64() * 1e3;
     io::write_mesh(&a.out, &TriMesh::new(v, model.faces().to_vec()))?;
-    let model = model.inner();
     println!(
         "{}: {} vertices, posed in {ms:.1} ms ({} correction)",
         a.out.display(),
-        model.n_vertices,
-        if a.no_correction || model.correction.is_none() {
+        model.n_vertices(),
+        if a.no_correction || !model.has_correction() {
             "without"
         } else {
             "with"

@@ -96,7 +96,7 @@ fn solve_then_export_as_bvh() {
 /// joint order.
 fn rig_joints(model: &str, solve: &Path, b: &panoman_mocap::bvh::Bvh) -> Vec<Vec<[f64; 3]>> {
     let model = panoman::Model::load(model).unwrap();
-    let g = model.inner().rig.as_ref().unwrap().generator.clone();
+    let g = model.rig().unwrap().generator.clone();
     let mut files: Vec<PathBuf> = std::fs::read_dir(solve)
         .unwrap()
         .map(|e| e.unwrap().path())

@@ -109,8 +109,12 @@ impl MarkerSolver {
             })
             .sum::<f64>()
             / nm.max(1) as f64;
-        let flat: Vec<f64> = rest.iter().flatten().copied().collect();
-        let alpha = self.model.inner().shape.project(&flat);
+        let alpha = self
+            .model
+            .project_shape(&rest)
+            .map_err(|e| MocapError::Invalid {
+                what: format!("calibrated rest mesh: {e}"),
+            })?;
         let patches = marker_patches(self.faces(), &map, &rest, o.patch_sigma_m);
         Ok(Calibration {
             map,
