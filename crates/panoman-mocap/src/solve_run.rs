@@ -13,8 +13,8 @@ use crate::jitter::mean_acceleration;
 use crate::marker_map::{MarkerMap, MarkerMapFile, default_set_for, read_marker_map};
 use crate::markers::{MarkerSequence, UpAxis};
 use crate::solve::{
-    Calibration, FrameReport, Jitter, MarkerSolver, SolveOptions, SolveReport, SolvedFrame,
-    mean_max_mm,
+    Calibration, CalibrationSummary, FrameReport, Jitter, MarkerSolver, SolveOptions, SolveReport,
+    SolvedFrame, mean_max_mm,
 };
 
 /// What to solve.
@@ -332,14 +332,14 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
                 (m.name.clone(), mean)
             })
             .collect(),
-        calibration: serde_json::json!({
-            "frames": cal.frames,
-            "seconds": cal.seconds,
-            "rounds": req.options.calibration_rounds,
-            "mean_residual_mm": cal.mean_residual_mm,
-            "mean_marker_shift_mm": cal.mean_marker_shift_mm,
-            "phenotype": cal.phenotype,
-        }),
+        calibration: CalibrationSummary {
+            frames: cal.frames.clone(),
+            mean_marker_shift_mm: cal.mean_marker_shift_mm,
+            mean_residual_mm: cal.mean_residual_mm,
+            phenotype: cal.phenotype,
+            rounds: req.options.calibration_rounds,
+            seconds: cal.seconds,
+        },
         times,
         glitches,
         held_out_marker_error_mm: held,

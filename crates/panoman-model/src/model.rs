@@ -272,10 +272,12 @@ pub struct PanoManModel {
     pub edge_part: Vec<u8>,
     /// Keypoint definitions.
     pub keypoints: KeypointRows,
-    /// Training configuration (free JSON).
-    pub config: serde_json::Value,
-    /// Training report (free JSON).
-    pub report: serde_json::Value,
+    /// The training configuration (`None`: not recorded, or a layout this version does not
+    /// read; fields missing in older files take the default preset's values).
+    pub config: Option<crate::train::TrainConfig>,
+    /// What the training measured on its own rows (`None`: not recorded, or a layout this
+    /// version does not read).
+    pub report: Option<crate::train::ModelReport>,
     /// The LBS rig (generator and topology map) the IK initializer and the LBS baseline need,
     /// stored in the file as the `rig.postcard` byte tensor ([`RigData::to_bytes`]), so that
     /// a model file alone can pose, encode, fit and track. `None` for model files written
@@ -603,8 +605,14 @@ impl PanoManModel {
             correction: self.correction.is_some(),
             motion_bones: self.motion.as_ref().map(|m| m.theta_bones.clone()),
             keypoint_names: self.keypoints.names.clone(),
-            config: self.config.clone(),
-            report: self.report.clone(),
+            // As JSON values: objects with sorted keys, so the bytes do not depend on the
+            // structs' field order.
+            config: self.config.as_ref().map_or(serde_json::Value::Null, |c| {
+                serde_json::to_value(c).expect("config serializes")
+            }),
+            report: self.report.as_ref().map_or(serde_json::Value::Null, |r| {
+                serde_json::to_value(r).expect("report serializes")
+            }),
         };
         s.set_metadata(
             MODEL_KIND,
@@ -751,8 +759,8 @@ impl PanoManModel {
                 names: h.keypoint_names,
                 rows,
             },
-            config: h.config,
-            report: h.report,
+            config: serde_json::from_value(h.config).ok(),
+            report: serde_json::from_value(h.report).ok(),
             rig,
         })
     }

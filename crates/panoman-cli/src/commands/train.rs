@@ -4,7 +4,7 @@ use crate::plot::component_curves_files;
 use crate::util::write_atomic;
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use panoman_model::train::{TrainConfig, evaluate};
+use panoman_model::train::{TrainConfig, TrainReport, evaluate};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -107,10 +107,15 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let (model, base_report, ds, regions) = if a.evaluate_only {
         let model = panoman_model::model::PanoManModel::load(&a.out)?;
         let (ds, regions) = panoman::training::dataset_and_regions(&assets, &a.data)?;
+        // The training's report when it reads, else one from the model file's own report.
         let report = std::fs::read_to_string(&report_path)
             .ok()
-            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-            .unwrap_or_else(|| serde_json::json!({"timings": {}}));
+            .and_then(|t| serde_json::from_str::<TrainReport>(&t).ok())
+            .unwrap_or_else(|| TrainReport {
+                preset: cfg.preset.clone(),
+                model: model.report.clone().unwrap_or_default(),
+                ..TrainReport::default()
+            });
         (model, report, ds, regions)
     } else {
         let trained = panoman::training::train(&assets, &a.data, &cfg, &mut stage)?;
@@ -119,9 +124,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         // The training report, until the evaluation below completes it: its
         // `representation_error` is null ("not evaluated yet"), so that a run stopped during
         // the evaluation does not leave a report that reads as complete.
-        let mut report = out.report;
-        report["representation_error"] = serde_json::Value::Null;
-        write_atomic(&report_path, serde_json::to_string_pretty(&report)?)?;
+        let report = out.report;
+        write_atomic(&report_path, report_json(&report)?)?;
         (out.model, report, ds, regions)
     };
     let topo_name = model.topology_name.clone();
@@ -152,10 +156,14 @@ pub fn run(a: TrainArgs) -> Result<()> {
     stage("");
     pb.finish_and_clear();
     let mut report = base_report;
-    report["representation_error"] = serde_json::to_value(&eval.representation_error)?;
-    report["timings"]["evaluation_s"] = eval.timings.evaluation_s.into();
-    report["timings"]["curves_s"] = eval.timings.curves_s.into();
-    write_atomic(&report_path, &serde_json::to_string_pretty(&report)?)?;
+    report.representation_error = Some(eval.representation_error.clone());
+    report
+        .timings
+        .insert("evaluation_s".into(), eval.timings.evaluation_s);
+    report
+        .timings
+        .insert("curves_s".into(), eval.timings.curves_s);
+    write_atomic(&report_path, report_json(&report)?)?;
     // Fig. 7: CSV + PNG.
     let csv_path = PathBuf::from(format!("{}.fig7.csv", stem.display()));
     let png_path = PathBuf::from(format!("{}.fig7.png", stem.display()));
@@ -206,4 +214,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
         png_path.display()
     );
     Ok(())
+}
+
+/// The report as pretty JSON with every object's keys sorted (through `serde_json::Value`),
+/// as the report files have always been written.
+fn report_json(report: &TrainReport) -> Result<String> {
+    Ok(serde_json::to_string_pretty(&serde_json::to_value(
+        report,
+    )?)?)
 }

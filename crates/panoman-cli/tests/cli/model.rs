@@ -58,18 +58,28 @@ fn small_model_trains_poses_and_encodes() {
     assert_eq!(model.keypoints.names.len(), 133);
     assert_eq!(model.keypoints.names[0], "neck");
     assert!(model.keypoints.rows.iter().all(|r| !r.is_empty()));
-    let report: serde_json::Value = serde_json::from_str(
+    // The report file reads as the typed report, and the model file carries its own part
+    // and the configuration.
+    let report: panoman_model::train::TrainReport = serde_json::from_str(
         &std::fs::read_to_string(model_path.with_extension("report.json")).unwrap(),
     )
     .unwrap();
-    for part in ["body", "face", "hands"] {
-        assert!(
-            report["representation_error"][part]["mean_mm"]
-                .as_f64()
-                .unwrap()
-                .is_finite()
-        );
+    let repr = report.representation_error.as_ref().expect("evaluated");
+    for part in [&repr.body, &repr.face, &repr.hands] {
+        assert!(part.mean_mm.is_finite() && part.rows > 0);
     }
+    assert_eq!(model.report.as_ref(), Some(&report.model));
+    assert_eq!(report.preset, "small");
+    assert_eq!(
+        model.config.as_ref().map(|c| c.preset.as_str()),
+        Some("small")
+    );
+    let blocks = &report.model.blocks;
+    for b in [&blocks.body_l, &blocks.face_l, &blocks.hands_l] {
+        assert!(b.as_ref().expect("block summary").components > 0);
+    }
+    assert!(blocks.correction.is_some() && blocks.motion.is_some());
+    assert!(report.timings["total_s"] > 0.0 && report.timings.contains_key("evaluation_s"));
     assert!(model_path.with_extension("fig7.png").exists());
     assert!(model_path.with_extension("fig7.csv").exists());
 

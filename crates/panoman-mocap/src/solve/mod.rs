@@ -301,6 +301,24 @@ pub struct HeldOut {
     pub seconds: f64,
 }
 
+/// The calibration's part of [`SolveReport`] (`report.json`'s `calibration`; fields in
+/// alphabetical order, the file's key order).
+#[derive(Clone, Debug, Serialize)]
+pub struct CalibrationSummary {
+    /// The calibration frames (indices into the sequence).
+    pub frames: Vec<usize>,
+    /// Mean move of the surface points from the initial map (mm).
+    pub mean_marker_shift_mm: f64,
+    /// Mean marker residual over the calibration frames after the last round (mm).
+    pub mean_residual_mm: f64,
+    /// The six fitted phenotype values (IK order).
+    pub phenotype: [f64; 6],
+    /// Calibration rounds ([`SolveOptions::calibration_rounds`]).
+    pub rounds: usize,
+    /// Wall time (s).
+    pub seconds: f64,
+}
+
 /// `report.json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct SolveReport {
@@ -324,8 +342,8 @@ pub struct SolveReport {
     pub outliers: usize,
     /// Mean residual per marker over the solved frames (mm).
     pub per_marker_residual_mm: BTreeMap<String, f64>,
-    /// Calibration: frames, time (s), residual and marker shift (mm), phenotype.
-    pub calibration: serde_json::Value,
+    /// The calibration's summary.
+    pub calibration: CalibrationSummary,
     /// Times per stage (s; `tracking_warm_ms_per_frame` in ms).
     pub times: BTreeMap<String, f64>,
     /// Observations treated as missing as capture glitches, per marker (see

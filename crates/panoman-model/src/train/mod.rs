@@ -32,19 +32,28 @@ use panoman_mesh::geom::{V3, norm, sub};
 use panoman_mesh::{RestGeometry, Rla, Topology};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 use std::ops::ControlFlow;
 use std::sync::Arc;
 use std::time::Instant;
 
+mod report;
 mod stages;
+
+pub use report::{
+    BlockSummaries, BlockSummary, CorrectionSummary, ModelReport, MotionSummary, RowCounts,
+    ShapeSummary, TrainReport,
+};
 
 use stages::{
     BodyCoefficients, StageLog, decompose, shape_pca, sorted_blocks, train_correction,
     train_motion, training_rla,
 };
 
-/// Training configuration (see [`TrainConfig::preset`]).
-#[derive(Clone, Debug, Serialize)]
+/// Training configuration (see [`TrainConfig::preset`]). Read back from model files with the
+/// default preset's values for the fields an older file lacks.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct TrainConfig {
     /// Preset name.
     pub preset: String,
@@ -86,6 +95,12 @@ pub struct TrainConfig {
     pub eval_gn: bool,
     /// Seed of every random choice.
     pub seed: u64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        TrainConfig::preset("default").expect("the default preset exists")
+    }
 }
 
 impl TrainConfig {
@@ -253,8 +268,9 @@ pub struct Evaluation {
 pub struct TrainOutput {
     /// The model (its `report` holds the deterministic parts of the report).
     pub model: PanoManModel,
-    /// Full training report (with timings).
-    pub report: serde_json::Value,
+    /// Full training report (with timings; the representation error is filled by
+    /// [`evaluate`]'s caller).
+    pub report: TrainReport,
 }
 
 struct RowRla {
@@ -336,8 +352,8 @@ pub fn train(
     };
     let mut log = StageLog {
         progress,
-        timings: serde_json::Map::new(),
-        blocks: serde_json::Map::new(),
+        timings: BTreeMap::new(),
+        blocks: BlockSummaries::default(),
     };
 
     // 1. Shape PCA.
@@ -387,15 +403,21 @@ pub fn train(
     };
 
     let explained_shape: f64 = shape.explained_variance_ratio.iter().sum();
-    let config_json = serde_json::to_value(cfg).expect("config serializes");
-    let det_report = serde_json::json!({
-        "train_identities": ds.train.len(),
-        "held_out_identities": ds.held_out.len(),
-        "rows": {"body": kinds_rows[0].len(), "face": kinds_rows[1].len(), "hands": kinds_rows[2].len()},
-        "shape": {"components": shape.n_components(), "explained_variance": explained_shape,
-                  "explained_per_component": shape.explained_variance_ratio},
-        "blocks": log.blocks,
-    });
+    let det_report = ModelReport {
+        train_identities: ds.train.len(),
+        held_out_identities: ds.held_out.len(),
+        rows: RowCounts {
+            body: kinds_rows[0].len(),
+            face: kinds_rows[1].len(),
+            hands: kinds_rows[2].len(),
+        },
+        shape: ShapeSummary {
+            components: shape.n_components(),
+            explained_variance: explained_shape,
+            explained_per_component: shape.explained_variance_ratio.clone(),
+        },
+        blocks: std::mem::take(&mut log.blocks),
+    };
     let model = PanoManModel {
         topology_name: inputs.topology_name.clone(),
         topology_hash: topo.hash_hex(),
@@ -412,17 +434,18 @@ pub fn train(
             .map(|p| p.index() as u8)
             .collect(),
         keypoints: inputs.keypoints.clone(),
-        config: config_json,
-        report: det_report.clone(),
+        config: Some(cfg.clone()),
+        report: Some(det_report.clone()),
         rig: None,
     };
 
     log.time("total_s", t_all);
-    let report = serde_json::json!({
-        "preset": cfg.preset,
-        "model": det_report,
-        "timings": log.timings,
-    });
+    let report = TrainReport {
+        preset: cfg.preset.clone(),
+        model: det_report,
+        representation_error: None,
+        timings: log.timings,
+    };
     Ok(TrainOutput { model, report })
 }
 

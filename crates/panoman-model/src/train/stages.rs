@@ -7,9 +7,9 @@ use super::*;
 pub(super) struct StageLog<'a> {
     pub(super) progress: &'a mut dyn FnMut(&str),
     /// `timings`: seconds per stage (`shape_s`, `rla_s`, `splocs_<block>_s`, …).
-    pub(super) timings: serde_json::Map<String, serde_json::Value>,
+    pub(super) timings: BTreeMap<String, f64>,
     /// `model.blocks`: per block its decomposition figures, and the MLPs'.
-    pub(super) blocks: serde_json::Map<String, serde_json::Value>,
+    pub(super) blocks: BlockSummaries,
 }
 
 impl StageLog<'_> {
@@ -40,7 +40,7 @@ impl StageLog<'_> {
 
     pub(super) fn time(&mut self, key: impl Into<String>, since: Instant) {
         self.timings
-            .insert(key.into(), since.elapsed().as_secs_f64().into());
+            .insert(key.into(), since.elapsed().as_secs_f64());
     }
 }
 
@@ -153,16 +153,15 @@ pub(super) fn decompose(
                     "decomposition {name} (outer iteration {it}/{iters})"
                 ));
             })?;
-            log.blocks.insert(
-                name.into(),
-                serde_json::json!({
-                    "rows": n, "columns": c.len(), "components": dec.n_components(),
-                    "explained_variance": dec.explained_variance,
-                    "nnz": dec.components.nnz(),
-                    "median_support_fraction": median_support(&dec.components),
-                    "outer_iterations": dec.history.len(),
-                }),
-            );
+            *log.blocks.slot(name) = Some(BlockSummary {
+                rows: n,
+                columns: c.len(),
+                components: dec.n_components(),
+                explained_variance: dec.explained_variance,
+                nnz: dec.components.nnz(),
+                median_support_fraction: median_support(&dec.components),
+                outer_iterations: dec.history.len(),
+            });
             log.time(format!("splocs_{name}_s"), t);
             decs[b] = Some(dec);
         }
@@ -346,12 +345,13 @@ pub(super) fn train_correction(
         "correction MLP",
     )?;
     log.time("correction_s", t);
-    log.blocks.insert(
-        "correction".into(),
-        serde_json::json!({"head_rank": fit.head.rank(), "head_explained": fit.explained_ratio,
-                           "epochs_run": rep.history.len(), "best_val_loss": rep.best_val_loss,
-                           "final_train_loss": rep.history.last().map(|h| h.train_loss)}),
-    );
+    log.blocks.correction = Some(CorrectionSummary {
+        head_rank: fit.head.rank(),
+        head_explained: fit.explained_ratio,
+        epochs_run: rep.history.len(),
+        best_val_loss: rep.best_val_loss,
+        final_train_loss: rep.history.last().map(|h| h.train_loss),
+    });
     Ok(Correction {
         mlp: net,
         head: fit.head,
@@ -430,11 +430,11 @@ pub(super) fn train_motion(
         "motion MLP θ→β",
     )?;
     log.time("motion_s", t);
-    log.blocks.insert(
-        "motion".into(),
-        serde_json::json!({"inputs": 6 * index.len(), "epochs_run": rep.history.len(),
-                           "best_val_loss": rep.best_val_loss}),
-    );
+    log.blocks.motion = Some(MotionSummary {
+        inputs: 6 * index.len(),
+        epochs_run: rep.history.len(),
+        best_val_loss: rep.best_val_loss,
+    });
     Ok(Motion {
         mlp: net,
         theta_bones: bones,
