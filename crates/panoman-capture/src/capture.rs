@@ -194,7 +194,7 @@ pub fn track(
         out.residual_mm.push(
             fit.report
                 .keypoint_residuals
-                .get("body")
+                .get(&panoman::KeypointGroup::Body)
                 .map_or(f64::NAN, |g| g.mean_mm),
         );
         let mut kp = model.keypoints(&fit.vertices).map_err(|e| fit_err(f, e))?;

@@ -394,7 +394,7 @@ pub struct ShellFitReport {
     /// Per stage.
     pub stages: Vec<StageReport>,
     /// Keypoint residuals per group (body, face, left_hand, right_hand), after the fit.
-    pub keypoint_residuals: std::collections::BTreeMap<String, GroupResidual>,
+    pub keypoint_residuals: std::collections::BTreeMap<KeypointGroup, GroupResidual>,
     /// Total time (s) of [`ShellFitter::fit`] (initializer excluded).
     pub seconds: f64,
     /// The quality check of the fit's final keypoint residuals and shape ([`crate::quality`];
@@ -1143,7 +1143,7 @@ pub fn keypoint_residuals(
     model: &PanoManModel,
     kp: &KeypointsFile,
     x: &[V3],
-) -> std::collections::BTreeMap<String, GroupResidual> {
+) -> std::collections::BTreeMap<KeypointGroup, GroupResidual> {
     let all = panoman_human::keypoints::keypoint_names();
     let values = model.keypoints.evaluate(x);
     group_residuals(kp.points.iter().filter_map(|(&k, &p)| {
@@ -1155,12 +1155,10 @@ pub fn keypoint_residuals(
 /// Mean and max per keypoint group of `(TC-133 index, distance in mm)` pairs.
 pub fn group_residuals(
     distances: impl Iterator<Item = (usize, f64)>,
-) -> std::collections::BTreeMap<String, GroupResidual> {
-    let mut out: std::collections::BTreeMap<String, GroupResidual> = Default::default();
+) -> std::collections::BTreeMap<KeypointGroup, GroupResidual> {
+    let mut out: std::collections::BTreeMap<KeypointGroup, GroupResidual> = Default::default();
     for (k, d) in distances {
-        let g = out
-            .entry(KeypointGroup::of(k).name().to_string())
-            .or_default();
+        let g = out.entry(KeypointGroup::of(k)).or_default();
         g.n += 1;
         g.mean_mm += d;
         g.max_mm = g.max_mm.max(d);

@@ -27,6 +27,7 @@
 //! noted in the reason of a failed check (not a failure on its own: real people reach them).
 use crate::fit::GroupResidual;
 use crate::ik::{IK_PHENOTYPE, IkResult};
+use panoman_human::keypoints::KeypointGroup;
 use panoman_model::model::PanoManModel;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -106,7 +107,7 @@ impl QualityOptions {
 
     /// The problems of a set of group residuals (empty when every group passes), e.g.
     /// `body mean 31.2 mm > 10.0 mm`.
-    pub fn keypoint_problems(&self, res: &BTreeMap<String, GroupResidual>) -> Vec<String> {
+    pub fn keypoint_problems(&self, res: &BTreeMap<KeypointGroup, GroupResidual>) -> Vec<String> {
         let t = self.thresholds_mm();
         let mut out = Vec::new();
         for (g, r) in res {
@@ -170,7 +171,7 @@ pub fn alpha_leading_sigma(model: &PanoManModel, alpha: &[f64]) -> f64 {
 
 /// Keypoint residuals per group (mm) of an IK result, from its per-target residuals with
 /// weight > 0.
-pub fn ik_group_residuals(r: &IkResult) -> BTreeMap<String, GroupResidual> {
+pub fn ik_group_residuals(r: &IkResult) -> BTreeMap<KeypointGroup, GroupResidual> {
     crate::fit::group_residuals(
         r.residuals
             .iter()
@@ -269,9 +270,9 @@ impl Verdict {
 mod tests {
     use super::*;
 
-    fn res(mean: f64, max: f64) -> BTreeMap<String, GroupResidual> {
+    fn res(mean: f64, max: f64) -> BTreeMap<KeypointGroup, GroupResidual> {
         [(
-            "body".to_string(),
+            KeypointGroup::Body,
             GroupResidual {
                 n: 15,
                 mean_mm: mean,

@@ -45,8 +45,8 @@ fn main() -> panoman::Result<()> {
         println!(
             "{method:?}: mean vertex error {:.2} mm; keypoint residual body {:.2} / face {:.2} mm; {:.2} s",
             mean_mm(&out.vertices, &truth),
-            r.keypoint_residuals["body"].mean_mm,
-            r.keypoint_residuals["face"].mean_mm,
+            r.keypoint_residuals[&panoman::KeypointGroup::Body].mean_mm,
+            r.keypoint_residuals[&panoman::KeypointGroup::Face].mean_mm,
             r.total_seconds
         );
         for s in &r.stages {

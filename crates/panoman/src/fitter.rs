@@ -9,6 +9,7 @@ use panoman_fit::{
     ik_config_for_noise,
 };
 use panoman_human::assets;
+use panoman_human::keypoints::KeypointGroup;
 use panoman_human::params::{GeneratorParams, ShapeParams};
 use panoman_mesh::geom::V3;
 use panoman_model::model::Params;
@@ -178,7 +179,7 @@ pub struct FitReport {
     /// IK + shell fit (s).
     pub total_seconds: f64,
     /// Keypoint residual per group (`body`, `face`, `left_hand`, `right_hand`; mm).
-    pub keypoint_residuals: BTreeMap<String, GroupResidual>,
+    pub keypoint_residuals: BTreeMap<KeypointGroup, GroupResidual>,
     /// The quality check (flattened into report.json): `converged`, `reason` when not,
     /// the `thresholds` (mm), whether the initializer was `retried` and its `ik_attempts`
     /// (docs/design/shell-fit.md §7). A fit with `converged: false` is still returned; the

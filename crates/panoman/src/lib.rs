@@ -22,7 +22,9 @@
 //! ## Basic usage
 //!
 //! ```
-//! use panoman::{FitRequest, IkStart, Method, Model, Targets, Tracker, Fitter, Correction};
+//! use panoman::{
+//!     Correction, FitRequest, Fitter, IkStart, KeypointGroup, Method, Model, Targets, Tracker,
+//! };
 //! # fn main() -> panoman::Result<()> {
 //! let model = Model::load(panoman::training::small_model(None)?)?;
 //!
@@ -47,14 +49,14 @@
 //! let mut fitter = Fitter::new(&model)?;
 //! let fit = fitter.fit(&targets, &FitRequest::default())?;
 //! let lbs = fitter.fit(&targets, &FitRequest { method: Method::Lbs, ..Default::default() })?;
-//! assert!(fit.report.keypoint_residuals["body"].mean_mm < 5.0);
+//! assert!(fit.report.keypoint_residuals[&KeypointGroup::Body].mean_mm < 5.0);
 //! assert_eq!(lbs.vertices.len(), fit.vertices.len());
 //!
 //! // Track three frames (the same targets: a person standing still).
 //! let mut tracker = Tracker::with_fitter(fitter, FitRequest::default(), IkStart::Warm);
 //! for _ in 0..3 {
 //!     let frame = tracker.track(&targets)?;
-//!     assert!(frame.report.keypoint_residuals["body"].mean_mm < 5.0);
+//!     assert!(frame.report.keypoint_residuals[&KeypointGroup::Body].mean_mm < 5.0);
 //! }
 //! # Ok(()) }
 //! ```

@@ -5,7 +5,7 @@
 
 use panoman_fit::fit::{FitOptions, keypoint_residuals};
 use panoman_fit::{Constraints, FitError, FrameSolver, Init, LbsRig, Tracking};
-use panoman_human::keypoints::{KeypointsFile, keypoint_index};
+use panoman_human::keypoints::{KeypointGroup, KeypointsFile, keypoint_index};
 use panoman_mesh::geom::{V3, norm, sub};
 use panoman_model::model::PanoManModel;
 use std::path::{Path, PathBuf};
@@ -90,7 +90,7 @@ fn held_out_people_from_exact_keypoints() {
         e_pm += ep / cases.len() as f64;
         e_lbs += el / cases.len() as f64;
         // Exact keypoints are met closely: the keypoint terms dominate the shell's pull.
-        assert!(res["body"].mean_mm < 10.0, "{res:?}");
+        assert!(res[&KeypointGroup::Body].mean_mm < 10.0, "{res:?}");
         // The report covers the stages that ran.
         let names: Vec<&str> = fit.report.stages.iter().map(|s| s.name.as_str()).collect();
         assert!(names.contains(&"keypoints"), "{names:?}");
@@ -286,7 +286,7 @@ fn motion_data_constrains_the_body_coefficients() {
     assert!(d_held < 1e-5 * d_free.max(1.0), "{d_held} vs {d_free}");
     // The fit still meets the keypoints (the shell's V is free).
     let res = keypoint_residuals(&model, &c.keypoints, &held.vertices);
-    assert!(res["body"].mean_mm < 10.0, "{res:?}");
+    assert!(res[&KeypointGroup::Body].mean_mm < 10.0, "{res:?}");
     let mut bad = theta;
     bad.insert("upperarm01.L".into(), [f64::NAN, 0.0, 0.0]);
     let e = solver
@@ -409,7 +409,7 @@ fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
     };
     let (_, fit) = cold_fit(&mut solver, &c).expect("an unreachable target is not an error");
     assert!(fit.vertices.iter().flatten().all(|x| x.is_finite()));
-    assert!(fit.report.keypoint_residuals["body"].max_mm > 100.0);
+    assert!(fit.report.keypoint_residuals[&KeypointGroup::Body].max_mm > 100.0);
 
     let init = Init {
         posed: truth.clone(),

@@ -261,19 +261,31 @@ pub fn keypoint_index(name: &str) -> Option<usize> {
     INDEX.get(name).copied()
 }
 
-/// The five keypoint groups (reports give errors per group).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+/// The five keypoint groups (reports give errors per group, keyed by the group; in JSON by its
+/// [`KeypointGroup::name`]). The variants are declared in the order of their names, so that a
+/// map keyed by groups lists them as one keyed by names would; [`KeypointGroup::ALL`] is the
+/// TC-133 order.
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "snake_case")]
 pub enum KeypointGroup {
     /// The 15 body keypoints.
     Body,
-    /// The 6 foot keypoints.
-    Feet,
     /// The 70 face keypoints.
     Face,
+    /// The 6 foot keypoints.
+    Feet,
     /// The 21 left-hand keypoints.
     LeftHand,
     /// The 21 right-hand keypoints.
     RightHand,
+}
+
+impl std::fmt::Display for KeypointGroup {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 impl KeypointGroup {
@@ -307,7 +319,13 @@ impl KeypointGroup {
 
     /// Position in [`KeypointGroup::ALL`].
     pub fn position(self) -> usize {
-        self as usize
+        match self {
+            KeypointGroup::Body => 0,
+            KeypointGroup::Feet => 1,
+            KeypointGroup::Face => 2,
+            KeypointGroup::LeftHand => 3,
+            KeypointGroup::RightHand => 4,
+        }
     }
 
     /// Name used in reports: `body`, `feet`, `face`, `left_hand`, `right_hand`.

@@ -4,7 +4,7 @@ use std::path::Path;
 
 use panoman_fit::fit::{FitResult, keypoint_residuals};
 use panoman_fit::{Constraints, ik_config_for_noise};
-use panoman_human::keypoints::KeypointsFile;
+use panoman_human::keypoints::{KeypointGroup, KeypointsFile};
 use panoman_mesh::geom::V3;
 
 use super::metrics::{Noise, PartErrors, mean_of, part_errors, to_v3};
@@ -29,7 +29,7 @@ pub(crate) struct HeldOut {
 }
 
 /// Keypoint residuals accumulated per (method, keypoint group): Σ mean (mm), max (mm), people.
-type ResidualSums = BTreeMap<(&'static str, String), (f64, f64, usize)>;
+type ResidualSums = BTreeMap<(&'static str, KeypointGroup), (f64, f64, usize)>;
 
 /// Evenly spaced held-out body rows, `preset.people` of them at most.
 fn pick_people(b: &Bench, preset: &EvalPreset, data: &Path) -> Result<Vec<usize>> {
