@@ -34,6 +34,16 @@ pub enum CaptureError {
 }
 
 impl CaptureError {
+    /// The kind of failure ([`panoman_mesh::ErrorKind`]).
+    pub fn kind(&self) -> panoman_mesh::ErrorKind {
+        use panoman_mesh::ErrorKind as K;
+        match self {
+            CaptureError::Io { .. } | CaptureError::Fetch(_) => K::File,
+            CaptureError::Format { .. } => K::Format,
+            CaptureError::Invalid(_) => K::Invalid,
+        }
+    }
+
     /// A [`CaptureError::Format`] for `path`.
     pub fn format(path: &Path, what: impl Into<String>) -> Self {
         CaptureError::Format {

@@ -18,5 +18,18 @@ pub enum FitError {
     Human(#[from] panoman_human::HumanError),
 }
 
+impl FitError {
+    /// The kind of failure ([`panoman_mesh::ErrorKind`]).
+    pub fn kind(&self) -> panoman_mesh::ErrorKind {
+        use panoman_mesh::ErrorKind as K;
+        match self {
+            FitError::Invalid(_) => K::Invalid,
+            FitError::Model(e) => e.kind(),
+            FitError::Mesh(e) => e.kind(),
+            FitError::Human(e) => e.kind(),
+        }
+    }
+}
+
 /// Result alias of the fitting stage.
 pub type Result<T> = std::result::Result<T, FitError>;

@@ -53,6 +53,19 @@ pub enum HumanError {
 }
 
 impl HumanError {
+    /// The kind of failure ([`panoman_mesh::ErrorKind`]).
+    pub fn kind(&self) -> panoman_mesh::ErrorKind {
+        use panoman_mesh::ErrorKind as K;
+        match self {
+            HumanError::Io { .. } | HumanError::AssetsMissing { .. } | HumanError::Fetch(_) => {
+                K::File
+            }
+            HumanError::Format { .. } | HumanError::Checksum { .. } => K::Format,
+            HumanError::Invalid(_) => K::Invalid,
+            HumanError::Mesh(e) => e.kind(),
+        }
+    }
+
     /// An [`HumanError::Io`] for `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> HumanError {
         HumanError::Io {

@@ -40,6 +40,18 @@ pub enum InterchangeError {
 }
 
 impl InterchangeError {
+    /// The kind of failure ([`panoman_mesh::ErrorKind`]).
+    pub fn kind(&self) -> panoman_mesh::ErrorKind {
+        use panoman_mesh::ErrorKind as K;
+        match self {
+            InterchangeError::Io { .. } | InterchangeError::Tool { .. } => K::File,
+            InterchangeError::Format { .. } => K::Format,
+            InterchangeError::Invalid(_) => K::Invalid,
+            InterchangeError::Mesh(e) => e.kind(),
+            InterchangeError::Human(e) => e.kind(),
+        }
+    }
+
     /// A [`InterchangeError::Format`] for `path`.
     pub fn format(path: &Path, what: impl Into<String>) -> Self {
         InterchangeError::Format {

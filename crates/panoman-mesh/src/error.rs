@@ -3,6 +3,22 @@
 
 use std::path::PathBuf;
 
+/// What kind of failure an error is, whatever crate raised it (as `std::io::ErrorKind`): every
+/// crate's error type has a `kind()`, so callers (the Python binding, a CLI exit code) classify
+/// any of them with one match.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum ErrorKind {
+    /// A file or directory could not be found, read, written or fetched.
+    File,
+    /// A file's content is malformed, truncated, inconsistent or fails its checksum.
+    Format,
+    /// An argument is invalid: wrong sizes, non-finite values, unknown names, nothing to do.
+    Invalid,
+    /// A numerical step failed (singular system, failed factorization).
+    Numerical,
+}
+
 /// Errors of mesh I/O, validation and reconstruction.
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
@@ -31,6 +47,18 @@ pub enum MeshError {
 }
 
 impl MeshError {
+    /// The kind of failure.
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            MeshError::Io { .. } => ErrorKind::File,
+            MeshError::Format { .. } => ErrorKind::Format,
+            MeshError::Numerical(_) => ErrorKind::Numerical,
+            MeshError::Topology(_) | MeshError::NonFinite(_) | MeshError::Mismatch(_) => {
+                ErrorKind::Invalid
+            }
+        }
+    }
+
     /// Attach a file path to an error that has none (topology, non-finite, mismatch).
     pub fn in_file(self, path: impl Into<PathBuf>) -> MeshError {
         match self {

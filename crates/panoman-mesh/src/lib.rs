@@ -27,7 +27,7 @@ pub mod sparse;
 pub mod stats;
 pub mod topology;
 
-pub use error::{MeshError, Result};
+pub use error::{ErrorKind, MeshError, Result};
 pub use mesh::TriMesh;
 pub use recon::{GDerivative, GLinearization, GWorkspace, Gauge, Reconstructor};
 pub use rla::{RestGeometry, Rla};

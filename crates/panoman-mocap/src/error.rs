@@ -39,6 +39,18 @@ pub enum MocapError {
     },
 }
 
+impl MocapError {
+    /// The kind of failure ([`panoman_mesh::ErrorKind`]).
+    pub fn kind(&self) -> panoman_mesh::ErrorKind {
+        use panoman_mesh::ErrorKind as K;
+        match self {
+            MocapError::Io { .. } | MocapError::Fetch { .. } => K::File,
+            MocapError::Format { .. } => K::Format,
+            MocapError::Invalid { .. } => K::Invalid,
+        }
+    }
+}
+
 /// `Result` with [`MocapError`].
 pub type Result<T> = std::result::Result<T, MocapError>;
 

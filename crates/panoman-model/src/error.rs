@@ -30,5 +30,19 @@ pub enum ModelError {
     Mesh(#[from] panoman_mesh::MeshError),
 }
 
+impl ModelError {
+    /// The kind of failure ([`panoman_mesh::ErrorKind`]).
+    pub fn kind(&self) -> panoman_mesh::ErrorKind {
+        use panoman_mesh::ErrorKind as K;
+        match self {
+            ModelError::Io { .. } => K::File,
+            ModelError::Format { .. } => K::Format,
+            ModelError::Invalid(_) | ModelError::Params(_) => K::Invalid,
+            ModelError::Numerical(_) => K::Numerical,
+            ModelError::Mesh(e) => e.kind(),
+        }
+    }
+}
+
 /// Result alias of this crate.
 pub type Result<T, E = ModelError> = std::result::Result<T, E>;

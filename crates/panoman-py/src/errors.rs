@@ -8,59 +8,20 @@ pub(crate) enum Failure {
     Panic(String),
 }
 
-/// The `panoman._errors` class of a library error.
+/// The `panoman._errors` class of a library error (by its [`panoman::ErrorKind`]).
 pub(crate) fn error_class(e: &panoman::Error) -> &'static str {
-    use panoman::Error as E;
-    match e {
-        E::Io { .. } => "FileError",
-        E::Format { .. } => "FormatError",
-        E::Invalid(_) => "InvalidError",
-        E::Mesh(m) => mesh_class(m),
-        E::Human(h) => human_class(h),
-        E::Model(m) => model_class(m),
-        E::Fit(f) => fit_class(f),
+    kind_class(e.kind())
+}
+
+/// The `panoman._errors` class of an error kind.
+pub(crate) fn kind_class(k: panoman::ErrorKind) -> &'static str {
+    use panoman::ErrorKind as K;
+    match k {
+        K::File => "FileError",
+        K::Format => "FormatError",
+        K::Invalid => "InvalidError",
+        K::Numerical => "NumericalError",
         _ => "Error",
-    }
-}
-
-pub(crate) fn mesh_class(e: &panoman_mesh::MeshError) -> &'static str {
-    use panoman_mesh::MeshError as E;
-    match e {
-        E::Io { .. } => "FileError",
-        E::Format { .. } => "FormatError",
-        E::Numerical(_) => "NumericalError",
-        _ => "InvalidError",
-    }
-}
-
-pub(crate) fn human_class(e: &panoman_human::HumanError) -> &'static str {
-    use panoman_human::HumanError as E;
-    match e {
-        E::Io { .. } | E::AssetsMissing { .. } | E::Fetch(_) => "FileError",
-        E::Format { .. } | E::Checksum { .. } => "FormatError",
-        E::Mesh(m) => mesh_class(m),
-        _ => "InvalidError",
-    }
-}
-
-pub(crate) fn model_class(e: &panoman_model::ModelError) -> &'static str {
-    use panoman_model::ModelError as E;
-    match e {
-        E::Io { .. } => "FileError",
-        E::Format { .. } => "FormatError",
-        E::Numerical(_) => "NumericalError",
-        E::Mesh(m) => mesh_class(m),
-        _ => "InvalidError",
-    }
-}
-
-pub(crate) fn fit_class(e: &panoman_fit::FitError) -> &'static str {
-    use panoman_fit::FitError as E;
-    match e {
-        E::Model(m) => model_class(m),
-        E::Mesh(m) => mesh_class(m),
-        E::Human(h) => human_class(h),
-        _ => "InvalidError",
     }
 }
 

@@ -84,6 +84,7 @@ pub use panoman_fit::shape_calibration::{
 pub use panoman_human::keypoints::{FEET_NAMES, KeypointGroup, KeypointsFile, keypoint_names};
 pub use panoman_human::outputs::OutputTopology;
 pub use panoman_human::params::{GeneratorParams, ShapeParams};
+pub use panoman_mesh::ErrorKind;
 pub use panoman_mesh::geom::V3;
 pub use panoman_model::model::GnOptions;
 pub use panoman_model::model::Params;
