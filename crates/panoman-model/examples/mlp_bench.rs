@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use faer::Mat;
 use panoman_model::mlp::{
-    Dataset, EpochStats, Loss, Mlp, OutputNorm, PcaHead, PcaHeadOptions, TrainConfig, train,
+    EpochStats, Loss, Mlp, MlpDataset, MlpTrainConfig, OutputNorm, PcaHead, PcaHeadOptions, train,
 };
 
 struct Gen(u64);
@@ -40,16 +40,16 @@ fn teacher_data(n: usize, din: usize, dout: usize, seed: u64) -> (Mat<f32>, Mat<
 fn bench_training(name: &str, sizes: &[usize], n: usize, epochs: usize, loss: Loss) {
     let (din, dout) = (sizes[0], sizes[sizes.len() - 1]);
     let (x, y) = teacher_data(n, din, dout, 3);
-    let data = Dataset::new(x.as_ref(), y.as_ref()).unwrap();
+    let data = MlpDataset::new(x.as_ref(), y.as_ref()).unwrap();
     let nval = n / 10;
     let (xv, yv) = teacher_data(nval, din, dout, 4);
-    let val = Dataset::new(xv.as_ref(), yv.as_ref()).unwrap();
+    let val = MlpDataset::new(xv.as_ref(), yv.as_ref()).unwrap();
     let mut model = Mlp::new(sizes, 1).unwrap();
-    let cfg = TrainConfig {
+    let cfg = MlpTrainConfig {
         epochs,
         loss,
         output_norm: OutputNorm::Global,
-        ..TrainConfig::default()
+        ..MlpTrainConfig::default()
     };
     let mut last = 0.0;
     let mut per_epoch = Vec::new();

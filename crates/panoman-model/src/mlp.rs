@@ -33,6 +33,6 @@ pub use net::{ForwardScratch, Mlp};
 pub use pca_head::{PcaHead, PcaHeadFit, PcaHeadOptions};
 pub use store::{Element, Tensor, TensorData, TensorStore};
 pub use train::{
-    Dataset, EpochStats, Loss, OutputNorm, TrainConfig, TrainReport, cosine_lr, evaluate,
+    EpochStats, Loss, MlpDataset, MlpTrainConfig, MlpTrainReport, OutputNorm, cosine_lr, evaluate,
     loss_gradient, train,
 };

@@ -69,7 +69,7 @@ impl Quantity {
 
 /// One β block: a part's mean and sparse localized components over its edge columns.
 #[derive(Clone, Debug)]
-pub struct Block {
+pub struct ComponentBlock {
     /// Block name (one of [`BLOCK_NAMES`]).
     pub name: String,
     /// Edge id of each column, ascending.
@@ -83,7 +83,7 @@ pub struct Block {
     pub beta_range: Vec<[f32; 2]>,
 }
 
-impl Block {
+impl ComponentBlock {
     /// Number of components K of the block.
     pub fn n_components(&self) -> usize {
         self.components.n_rows()
@@ -94,7 +94,7 @@ impl Block {
 /// output `μ + (P·mlp(β))⊘w` is the RL residual on the `body_l` columns followed by the RA
 /// residual on the `body_a` columns.
 #[derive(Clone, Debug)]
-pub struct Correction {
+pub struct CorrectionMlp {
     /// The network: (K_LB + K_AB − 2) → hidden → rank(head) (inputs without the two mean
     /// coefficients, see the module docs).
     pub mlp: Mlp,
@@ -263,9 +263,9 @@ pub struct PanoManModel {
     /// Shape space (Eq. 2).
     pub shape: ShapePca,
     /// The six β blocks in [`BLOCK_NAMES`] order.
-    pub blocks: Vec<Block>,
+    pub blocks: Vec<ComponentBlock>,
     /// Correction MLP (optional).
-    pub correction: Option<Correction>,
+    pub correction: Option<CorrectionMlp>,
     /// Motion MLP θ → β_body (optional).
     pub motion: Option<Motion>,
     /// Part of each edge (0 body, 1 face, 2 left hand, 3 right hand).
@@ -316,13 +316,13 @@ struct BlockHeader {
 
 impl PanoManModel {
     /// The block called `name`.
-    pub fn block(&self, name: &str) -> Option<&Block> {
+    pub fn block(&self, name: &str) -> Option<&ComponentBlock> {
         self.blocks.iter().find(|b| b.name == name)
     }
 
     /// Total number of β entries.
     pub fn n_beta(&self) -> usize {
-        self.blocks.iter().map(Block::n_components).sum()
+        self.blocks.iter().map(ComponentBlock::n_components).sum()
     }
 
     /// Number of edges of the template.
@@ -724,7 +724,7 @@ impl PanoManModel {
                     "correction head dimension does not match the body columns".into(),
                 ));
             }
-            Some(Correction { mlp, head })
+            Some(CorrectionMlp { mlp, head })
         } else {
             None
         };
@@ -791,7 +791,7 @@ fn read_shape(s: &TensorStore, h: &Header) -> Result<ShapePca> {
 
 /// The six component blocks of a model store (`block.<name>.*`), checked against the
 /// header.
-fn read_blocks(s: &TensorStore, h: &Header) -> Result<Vec<Block>> {
+fn read_blocks(s: &TensorStore, h: &Header) -> Result<Vec<ComponentBlock>> {
     let bad = |w: String| ModelError::Invalid(w);
     if h.blocks.len() != 6 || h.blocks.iter().zip(BLOCK_NAMES).any(|(b, n)| b.name != n) {
         return Err(bad(format!(
@@ -826,7 +826,7 @@ fn read_blocks(s: &TensorStore, h: &Header) -> Result<Vec<Block>> {
             return Err(bad(format!("{p}: inconsistent sparse component storage")));
         }
         let range = get_f32(s, &format!("{p}.beta_range"), &[bh.n_components, 2])?;
-        blocks.push(Block {
+        blocks.push(ComponentBlock {
             name: bh.name.clone(),
             columns,
             mean,
@@ -865,7 +865,7 @@ fn read_keypoint_rows(s: &TensorStore, h: &Header) -> Result<Vec<Vec<(u32, f64)>
 }
 
 /// `K_LB + K_AB − 2`: the body coefficients the MLPs see (without the two mean coefficients).
-fn body_mlp_len(blocks: &[Block]) -> usize {
+fn body_mlp_len(blocks: &[ComponentBlock]) -> usize {
     (blocks[0].n_components() + blocks[3].n_components()).saturating_sub(2)
 }
 

@@ -7,8 +7,8 @@ use std::ops::ControlFlow;
 use faer::Mat;
 use panoman_model::ModelError;
 use panoman_model::mlp::{
-    Dataset, EpochStats, Loss, Mlp, OutputNorm, PcaHead, PcaHeadOptions, TensorData, TensorStore,
-    TrainConfig, cosine_lr, evaluate, loss_gradient, train,
+    EpochStats, Loss, Mlp, MlpDataset, MlpTrainConfig, OutputNorm, PcaHead, PcaHeadOptions,
+    TensorData, TensorStore, cosine_lr, evaluate, loss_gradient, train,
 };
 
 /// Small deterministic generator for test data (xorshift64*).
@@ -73,16 +73,16 @@ fn overfits_32_samples() {
     // deviations: ~4 orders of magnitude above f32 resolution, so f32 is no obstacle.
     let mut g = Gen(7);
     let (x, y) = regression(&mut g, 32, 10, 4, 0.0);
-    let data = Dataset::new(x.as_ref(), y.as_ref()).unwrap();
+    let data = MlpDataset::new(x.as_ref(), y.as_ref()).unwrap();
     let mut model = Mlp::new(&[10, 128, 4], 1).unwrap();
-    let cfg = TrainConfig {
+    let cfg = MlpTrainConfig {
         epochs: 3000,
         batch_size: 32,
         lr_max: 3e-3,
         lr_min: 1e-6,
         weight_decay: 0.0,
         patience: None,
-        ..TrainConfig::default()
+        ..MlpTrainConfig::default()
     };
     let report = train(&mut model, &data, None, &cfg, &mut go_on).unwrap();
     let loss = evaluate(&model, &data, &Loss::Mse).unwrap();
@@ -204,7 +204,7 @@ fn metric_and_mse_gradients_match_finite_differences() {
     random_normalization(&mut model, &mut g);
     let x = g.mat(n, nin, 1.5);
     let y = g.mat(n, nout, 2.0);
-    let data = Dataset::new(x.as_ref(), y.as_ref()).unwrap();
+    let data = MlpDataset::new(x.as_ref(), y.as_ref()).unwrap();
     let a = g.mat(nout, nout, 1.0);
     let gram = Mat::<f64>::from_fn(nout, nout, |i, j| {
         (0..nout)
@@ -538,12 +538,12 @@ fn pca_head_is_orthonormal_and_near_optimal() {
 fn small_trained(seed: u64) -> (Mlp, Mat<f32>) {
     let mut g = Gen(seed + 100);
     let (x, y) = regression(&mut g, 200, 8, 3, 0.1);
-    let data = Dataset::new(x.as_ref(), y.as_ref()).unwrap();
+    let data = MlpDataset::new(x.as_ref(), y.as_ref()).unwrap();
     let mut model = Mlp::new(&[8, 32, 16, 3], seed).unwrap();
-    let cfg = TrainConfig {
+    let cfg = MlpTrainConfig {
         epochs: 5,
         batch_size: 64,
-        ..TrainConfig::default()
+        ..MlpTrainConfig::default()
     };
     train(&mut model, &data, None, &cfg, &mut go_on).unwrap();
     (model, x)
@@ -689,7 +689,7 @@ fn serialization_round_trip_is_bit_exact_and_validated() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-fn train_in_pool(threads: usize, seed: u64, data: &Dataset<'_>, cfg: &TrainConfig) -> Mlp {
+fn train_in_pool(threads: usize, seed: u64, data: &MlpDataset<'_>, cfg: &MlpTrainConfig) -> Mlp {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -705,11 +705,11 @@ fn train_in_pool(threads: usize, seed: u64, data: &Dataset<'_>, cfg: &TrainConfi
 fn training_and_pca_are_deterministic_across_thread_counts() {
     let mut g = Gen(31);
     let (x, y) = regression(&mut g, 512, 100, 20, 0.05);
-    let data = Dataset::new(x.as_ref(), y.as_ref()).unwrap();
-    let cfg = TrainConfig {
+    let data = MlpDataset::new(x.as_ref(), y.as_ref()).unwrap();
+    let cfg = MlpTrainConfig {
         epochs: 3,
         seed: 77,
-        ..TrainConfig::default()
+        ..MlpTrainConfig::default()
     };
     // Layer products here are large enough to be split into several parallel blocks.
     let one = train_in_pool(1, 4, &data, &cfg);
@@ -727,7 +727,7 @@ fn training_and_pca_are_deterministic_across_thread_counts() {
         2,
         4,
         &data,
-        &TrainConfig {
+        &MlpTrainConfig {
             seed: 78,
             ..cfg.clone()
         },
@@ -765,17 +765,17 @@ fn early_stopping_keeps_the_best_epoch() {
     let (x, y) = regression(&mut g, 80, 4, 2, 0.6);
     let (xt, yt) = (x.as_ref().subrows(0, 40), y.as_ref().subrows(0, 40));
     let (xv, yv) = (x.as_ref().subrows(40, 40), y.as_ref().subrows(40, 40));
-    let tr = Dataset::new(xt, yt).unwrap();
-    let va = Dataset::new(xv, yv).unwrap();
+    let tr = MlpDataset::new(xt, yt).unwrap();
+    let va = MlpDataset::new(xv, yv).unwrap();
     let mut model = Mlp::new(&[4, 256, 2], 2).unwrap();
-    let cfg = TrainConfig {
+    let cfg = MlpTrainConfig {
         epochs: 2000,
         batch_size: 16,
         lr_max: 1e-2,
         weight_decay: 0.0,
         patience: Some(20),
         output_norm: OutputNorm::Global,
-        ..TrainConfig::default()
+        ..MlpTrainConfig::default()
     };
     let mut seen = 0;
     let report = train(&mut model, &tr, Some(&va), &cfg, &mut |s: &EpochStats| {
@@ -817,14 +817,14 @@ fn early_stopping_keeps_the_best_epoch() {
     // Bad data and configs are rejected.
     let mut xn = x.clone();
     xn[(2, 1)] = f32::INFINITY;
-    let bad = Dataset::new(xn.as_ref(), y.as_ref()).unwrap();
+    let bad = MlpDataset::new(xn.as_ref(), y.as_ref()).unwrap();
     let e = train(&mut m2, &bad, None, &cfg, &mut go_on).unwrap_err();
     assert!(e.to_string().contains("sample 2, column 1"), "{e}");
     let e = train(
         &mut m2,
         &tr,
         None,
-        &TrainConfig {
+        &MlpTrainConfig {
             batch_size: 0,
             ..cfg.clone()
         },
@@ -832,7 +832,7 @@ fn early_stopping_keeps_the_best_epoch() {
     )
     .unwrap_err();
     assert!(e.to_string().contains("batch_size"), "{e}");
-    assert!(Dataset::new(x.as_ref(), y.as_ref().subrows(0, 3)).is_err());
+    assert!(MlpDataset::new(x.as_ref(), y.as_ref().subrows(0, 3)).is_err());
 }
 
 #[test]

@@ -7,8 +7,8 @@ use crate::render::{Rgb, Scene, View, error_color};
 use anyhow::{Context, Result};
 use clap::Args;
 use panoman::eval::{
-    ClipFrame, EvalConfig, EvalOutput, EvalPreset, EvalProgress, EvalSummary, MeshTriple,
-    PartErrors, StressSummary, TwistSummary,
+    ClipRow, EvalConfig, EvalOutput, EvalPreset, EvalProgress, EvalSummary, MeshTriple, PartErrors,
+    StressSummary, TwistSummary,
 };
 use panoman_mesh::TriMesh;
 use panoman_mesh::geom::{V3, norm, sub};
@@ -233,7 +233,7 @@ fn correction_ablation(path: &Path, s: &EvalSummary) -> Result<()> {
 }
 
 /// `clip.csv` and `clip.png`: per-frame errors of both methods.
-fn clip_files(dir: &Path, frames: &[ClipFrame]) -> Result<()> {
+fn clip_files(dir: &Path, frames: &[ClipRow]) -> Result<()> {
     let mut csv = String::from(
         "frame,panoman_body_mean_mm,panoman_face_mean_mm,panoman_hands_mean_mm,panoman_all_mean_mm,panoman_all_max_mm,lbs_body_mean_mm,lbs_face_mean_mm,lbs_hands_mean_mm,lbs_all_mean_mm,lbs_all_max_mm,panoman_s,lbs_s\n",
     );
@@ -258,7 +258,7 @@ fn clip_files(dir: &Path, frames: &[ClipFrame]) -> Result<()> {
     }
     write_text(&dir.join("clip.csv"), &csv)?;
     let panel = |title: &str, y: &str, f: &dyn Fn(&PartErrors) -> f64| {
-        let curve = |name: &str, g: &dyn Fn(&ClipFrame) -> &PartErrors| Series {
+        let curve = |name: &str, g: &dyn Fn(&ClipRow) -> &PartErrors| Series {
             name: name.into(),
             points: frames
                 .iter()

@@ -36,7 +36,7 @@ use crate::render::{PALETTE, Scene, View};
 
 /// How much of each capture `mocap eval` solves.
 #[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
-pub enum EvalPreset {
+pub enum MocapEvalPreset {
     /// Every nick frame, every 2nd Thomas frame, every 4th CMU frame (the README's figures;
     /// about 20 minutes on 2 cores).
     Full,
@@ -58,7 +58,7 @@ pub struct MocapEvalArgs {
     pub data: PathBuf,
     /// How much of each capture is solved.
     #[arg(long, value_enum, default_value = "full")]
-    pub preset: EvalPreset,
+    pub preset: MocapEvalPreset,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -122,8 +122,8 @@ pub fn run(a: MocapEvalArgs) -> Result<()> {
     let mut table = Vec::new();
     for (c, (file, vsk)) in CAPTURES.iter().zip(&files) {
         let frames = match a.preset {
-            EvalPreset::Full => c.full,
-            EvalPreset::Quick => c.quick,
+            MocapEvalPreset::Full => c.full,
+            MocapEvalPreset::Quick => c.quick,
         };
         let mut per_method = serde_json::Map::new();
         let mut series = Vec::new();
@@ -297,8 +297,8 @@ fn cmu_tracking(
     eprintln!("CMU 01_01: retargeting …");
     let (_, rt) = super::mocap::cmu_retarget(&rig.generator, &bvh, 24)?;
     let range = match a.preset {
-        EvalPreset::Full => (0, None, 4),
-        EvalPreset::Quick => (0, Some(400), 8),
+        MocapEvalPreset::Full => (0, None, 4),
+        MocapEvalPreset::Quick => (0, Some(400), 8),
     };
     let mut out = serde_json::Map::new();
     let mut panels = Vec::new();

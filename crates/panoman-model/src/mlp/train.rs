@@ -21,14 +21,14 @@ const ADAM_CHUNK: usize = 1 << 14;
 /// row (any strides). For early stopping the caller builds the validation set from held-out
 /// **identities** (docs/design/splocs-model.md §5.1), not random samples.
 #[derive(Clone, Copy, Debug)]
-pub struct Dataset<'a> {
+pub struct MlpDataset<'a> {
     /// Inputs, `N × in`.
     pub x: MatRef<'a, f32>,
     /// Targets, `N × out`.
     pub y: MatRef<'a, f32>,
 }
 
-impl<'a> Dataset<'a> {
+impl<'a> MlpDataset<'a> {
     /// Pairs inputs and targets.
     ///
     /// Errors: [`ModelError::Invalid`] if the row counts differ.
@@ -77,10 +77,10 @@ pub enum Loss {
 }
 
 /// How the output normalization `y = μ_y + s_y ⊙ o` is fitted when
-/// [`TrainConfig::fit_normalization`] is set (statistics over the training set, f64).
+/// [`MlpTrainConfig::fit_normalization`] is set (statistics over the training set, f64).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum OutputNorm {
-    /// Per-output mean and standard deviation (floored at [`TrainConfig::sigma_floor`]); the
+    /// Per-output mean and standard deviation (floored at [`MlpTrainConfig::sigma_floor`]); the
     /// default for the motion MLP's β outputs.
     PerDim,
     /// Per-output mean and **one** scale `s = sqrt(mean_k var_k)` for all outputs. Use this for
@@ -94,7 +94,7 @@ pub enum OutputNorm {
 /// Hyper-parameters of [`train`] (defaults = docs/design/splocs-model.md §5.1: AdamW β₁ 0.9, β₂ 0.999,
 /// ε 1e−8, weight decay 1e−5, cosine decay 1e−3 → 1e−5, batch 128).
 #[derive(Clone, Debug, PartialEq)]
-pub struct TrainConfig {
+pub struct MlpTrainConfig {
     /// Number of epochs `E` (the cosine schedule spans all of them even if training stops early).
     pub epochs: usize,
     /// Minibatch size (the last batch of an epoch may be smaller).
@@ -129,7 +129,7 @@ pub struct TrainConfig {
     pub sigma_floor: f32,
 }
 
-impl Default for TrainConfig {
+impl Default for MlpTrainConfig {
     fn default() -> Self {
         Self {
             epochs: 300,
@@ -168,7 +168,7 @@ pub struct EpochStats {
 
 /// Outcome of [`train`].
 #[derive(Clone, Debug, PartialEq)]
-pub struct TrainReport {
+pub struct MlpTrainReport {
     /// One entry per epoch run.
     pub history: Vec<EpochStats>,
     /// Optimizer steps taken.
@@ -475,7 +475,7 @@ fn check_finite(m: MatRef<'_, f32>, what: &str) -> Result<()> {
     Ok(())
 }
 
-fn check_data(model: &Mlp, data: &Dataset<'_>, what: &str) -> Result<()> {
+fn check_data(model: &Mlp, data: &MlpDataset<'_>, what: &str) -> Result<()> {
     if data.x.ncols() != model.n_inputs() || data.y.ncols() != model.n_outputs() {
         return Err(ModelError::Invalid(format!(
             "{what} set is {}→{}, the MLP is {}→{}",
@@ -512,7 +512,7 @@ fn column_stats(m: MatRef<'_, f32>) -> (Vec<f64>, Vec<f64>) {
 }
 
 /// Fits the normalization of `model` to the training set (docs/design/splocs-model.md §5.1: z-scored inputs, σ floored).
-fn fit_normalization(model: &mut Mlp, data: &Dataset<'_>, cfg: &TrainConfig) -> Result<()> {
+fn fit_normalization(model: &mut Mlp, data: &MlpDataset<'_>, cfg: &MlpTrainConfig) -> Result<()> {
     let floor = f64::from(cfg.sigma_floor);
     let (xm, xs) = column_stats(data.x);
     let (ym, ys) = column_stats(data.y);
@@ -533,7 +533,7 @@ fn fit_normalization(model: &mut Mlp, data: &Dataset<'_>, cfg: &TrainConfig) -> 
 }
 
 /// Normalized column-major copies `(x̃: in × N, ỹ: out × N)` of a data set.
-fn normalized(model: &Mlp, data: &Dataset<'_>) -> (Vec<f32>, Vec<f32>) {
+fn normalized(model: &Mlp, data: &MlpDataset<'_>) -> (Vec<f32>, Vec<f32>) {
     let xt = to_columns(data.x, |x, d| model.normalize_input(x, d));
     let (m, s) = (model.output_mean(), model.output_scale());
     let yt = to_columns(data.y, |y, d| {
@@ -566,7 +566,7 @@ fn mean_loss(model: &Mlp, loss: &LossImpl, xt: &[f32], yt: &[f32], n: usize) -> 
 /// using the model's current normalization (f64 accumulation, deterministic).
 ///
 /// Errors: [`ModelError::Invalid`] on mismatched sizes, non-finite data or an invalid metric.
-pub fn evaluate(model: &Mlp, data: &Dataset<'_>, loss: &Loss) -> Result<f64> {
+pub fn evaluate(model: &Mlp, data: &MlpDataset<'_>, loss: &Loss) -> Result<f64> {
     check_data(model, data, "evaluation")?;
     let li = LossImpl::new(loss, model.output_scale())?;
     let (xt, yt) = normalized(model, data);
@@ -578,7 +578,7 @@ pub fn evaluate(model: &Mlp, data: &Dataset<'_>, loss: &Loss) -> Result<f64> {
 /// f64 loss). Exposed for gradient checks.
 ///
 /// Errors: as [`evaluate`]; also for an empty data set.
-pub fn loss_gradient(model: &Mlp, data: &Dataset<'_>, loss: &Loss) -> Result<(f64, Vec<f32>)> {
+pub fn loss_gradient(model: &Mlp, data: &MlpDataset<'_>, loss: &Loss) -> Result<(f64, Vec<f32>)> {
     check_data(model, data, "gradient")?;
     if data.is_empty() {
         return Err(ModelError::Invalid("gradient of an empty data set".into()));
@@ -634,7 +634,7 @@ fn adamw(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], h: AdamStep) {
         });
 }
 
-fn check_config(cfg: &TrainConfig) -> Result<()> {
+fn check_config(cfg: &MlpTrainConfig) -> Result<()> {
     let bad = |what: &str| Err(ModelError::Invalid(format!("training config: {what}")));
     if cfg.batch_size == 0 {
         return bad("batch_size must be positive");
@@ -678,11 +678,11 @@ fn check_config(cfg: &TrainConfig) -> Result<()> {
 /// [`ModelError::Numerical`] if the loss becomes non-finite.
 pub fn train(
     model: &mut Mlp,
-    train_set: &Dataset<'_>,
-    val_set: Option<&Dataset<'_>>,
-    cfg: &TrainConfig,
+    train_set: &MlpDataset<'_>,
+    val_set: Option<&MlpDataset<'_>>,
+    cfg: &MlpTrainConfig,
     progress: &mut dyn FnMut(&EpochStats) -> ControlFlow<()>,
-) -> Result<TrainReport> {
+) -> Result<MlpTrainReport> {
     check_config(cfg)?;
     check_data(model, train_set, "training")?;
     if let Some(v) = val_set {
@@ -713,7 +713,7 @@ pub fn train(
     let mut order: Vec<usize> = (0..n).collect();
     let layout = model.layout().to_vec();
 
-    let mut report = TrainReport {
+    let mut report = MlpTrainReport {
         history: Vec::new(),
         steps: 0,
         best_epoch: None,

@@ -46,7 +46,7 @@ mod output;
 mod solver;
 
 pub use kernels::objective_residual_free;
-pub use output::{Decomposition, Encoder, IterationRecord, SparseRows};
+pub use output::{BlockEncoder, Decomposition, IterationRecord, SparseRows};
 pub use solver::{fit, fit_col_major};
 
 /// Columns per task in element-wise passes and reductions over K×M arrays. Fixed, so that

@@ -198,8 +198,8 @@ impl Decomposition {
     }
 
     /// Least-squares encoder of new samples on the components (see [`Encoder`]).
-    pub fn encoder(&self, ridge: f64) -> Result<Encoder> {
-        Encoder::new(self, ridge)
+    pub fn encoder(&self, ridge: f64) -> Result<BlockEncoder> {
+        BlockEncoder::new(self, ridge)
     }
 
     /// β = argmin ‖x − X̄ − Cᵀβ‖² + ridge·‖β‖² (f64 normal equations): projects a held-out
@@ -213,18 +213,18 @@ impl Decomposition {
 /// `(C·Cᵀ + ridge·I) β = C·(x − X̄)` with a K×K Cholesky factor in f64, built once.
 /// Dead components (zero rows of C) get β_k = 0.
 #[derive(Clone, Debug)]
-pub struct Encoder {
+pub struct BlockEncoder {
     pub(super) mean: Vec<f32>,
     pub(super) components: SparseRows,
     pub(super) chol: Vec<f64>,
 }
 
-impl Encoder {
+impl BlockEncoder {
     /// Factors `C·Cᵀ + ridge·I` (ridge ≥ 0, in data units squared).
     ///
     /// Errors: negative/non-finite ridge, or a singular Gram matrix (collinear components with
     /// ridge 0: pass a small ridge).
-    pub fn new(dec: &Decomposition, ridge: f64) -> Result<Encoder> {
+    pub fn new(dec: &Decomposition, ridge: f64) -> Result<BlockEncoder> {
         if !(ridge.is_finite() && ridge >= 0.0) {
             return Err(ModelError::Invalid(
                 "encoder ridge must be finite and ≥ 0".into(),
@@ -244,7 +244,7 @@ impl Encoder {
                 "encoder: the component Gram matrix is singular at pivot {i}; use a ridge > 0"
             ))
         })?;
-        Ok(Encoder {
+        Ok(BlockEncoder {
             mean: dec.mean.clone(),
             components: dec.components.clone(),
             chol,

@@ -20,7 +20,8 @@ use crate::error::{ModelError, Result};
 use crate::geodesic::{EdgeGeodesics, PartGeodesics};
 use crate::mlp::{self, Loss, Mlp, OutputNorm, PcaHead, PcaHeadOptions};
 use crate::model::{
-    BLOCK_NAMES, Block, Correction, Evaluator, GnOptions, KeypointRows, Motion, PanoManModel,
+    BLOCK_NAMES, ComponentBlock, CorrectionMlp, Evaluator, GnOptions, KeypointRows, Motion,
+    PanoManModel,
 };
 use crate::pca::ShapePca;
 use crate::splocs::{self, Decomposition, SparseRows, SplocsOptions};
@@ -509,7 +510,7 @@ fn split_rows(
     (pick(x, &tr), pick(y, &tr), pick(x, &va), pick(y, &va))
 }
 
-fn block_reconstruct(b: &Block, beta: &[f64]) -> Vec<f64> {
+fn block_reconstruct(b: &ComponentBlock, beta: &[f64]) -> Vec<f64> {
     let mut out: Vec<f64> = b.mean.iter().map(|&m| m as f64).collect();
     for (k, &bk) in beta.iter().enumerate() {
         if bk == 0.0 {
@@ -837,7 +838,7 @@ pub fn component_curves(
 }
 
 /// Keeps the first `k` components of a block.
-fn truncate_block(b: &mut Block, k: usize) {
+fn truncate_block(b: &mut ComponentBlock, k: usize) {
     let k = k.min(b.n_components());
     let end = b.components.row_ptr[k];
     b.components.row_ptr.truncate(k + 1);

@@ -21,13 +21,13 @@ impl StageLog<'_> {
         x: &Mat<f32>,
         y: &Mat<f32>,
         val: &[bool],
-        tcfg: &mlp::TrainConfig,
+        tcfg: &mlp::MlpTrainConfig,
         stage: &str,
-    ) -> Result<mlp::TrainReport> {
+    ) -> Result<mlp::MlpTrainReport> {
         let (xtr, ytr, xva, yva) = split_rows(x, y, val);
-        let train_set = mlp::Dataset::new(xtr.as_ref(), ytr.as_ref())?;
+        let train_set = mlp::MlpDataset::new(xtr.as_ref(), ytr.as_ref())?;
         let val_set = if xva.nrows() > 0 {
-            Some(mlp::Dataset::new(xva.as_ref(), yva.as_ref())?)
+            Some(mlp::MlpDataset::new(xva.as_ref(), yva.as_ref())?)
         } else {
             None
         };
@@ -178,7 +178,7 @@ pub(super) fn decompose(
 pub(super) fn sorted_blocks(
     decs: &[Decomposition],
     cols: &[Vec<u32>; 3],
-) -> (Vec<Block>, Vec<Vec<usize>>) {
+) -> (Vec<ComponentBlock>, Vec<Vec<usize>>) {
     let mut orders = Vec::with_capacity(6);
     let mut blocks = Vec::with_capacity(6);
     for (b, dec) in decs.iter().enumerate() {
@@ -218,7 +218,7 @@ pub(super) fn sorted_blocks(
             let pad = 0.1 * (hi - lo).max(1e-6);
             beta_range.push([lo - pad, hi + pad]);
         }
-        blocks.push(Block {
+        blocks.push(ComponentBlock {
             name: BLOCK_NAMES[b].into(),
             columns: cols[b % 3].clone(),
             mean: vec![0.0; dec.n_columns()],
@@ -250,7 +250,7 @@ impl BodyCoefficients {
     pub(super) fn new(
         decs: &[Decomposition],
         orders: &[Vec<usize>],
-        blocks: &[Block],
+        blocks: &[ComponentBlock],
         n_body: usize,
     ) -> Self {
         let (kl, ka) = (blocks[0].n_components(), blocks[3].n_components());
@@ -285,13 +285,13 @@ impl BodyCoefficients {
 pub(super) fn train_correction(
     topo: &Topology,
     vbar: &[V3],
-    blocks: &[Block],
+    blocks: &[ComponentBlock],
     body_rla: &[RowRla],
     body: &BodyCoefficients,
     val_mask: &[bool],
     cfg: &TrainConfig,
     log: &mut StageLog<'_>,
-) -> Result<Correction> {
+) -> Result<CorrectionMlp> {
     (log.progress)("correction MLP");
     let t = Instant::now();
     let (kl, ka, beta_b) = (body.kl, body.ka, &body.beta_b);
@@ -328,13 +328,13 @@ pub(super) fn train_correction(
         &[kl + ka - 2, cfg.correction_hidden, fit.head.rank()],
         cfg.seed ^ 0xC0,
     )?;
-    let tcfg = mlp::TrainConfig {
+    let tcfg = mlp::MlpTrainConfig {
         epochs: cfg.correction_epochs,
         seed: cfg.seed ^ 0xC1,
         output_norm: OutputNorm::Global,
         weight_decay: cfg.correction_weight_decay,
         patience: Some(cfg.correction_patience),
-        ..mlp::TrainConfig::default()
+        ..mlp::MlpTrainConfig::default()
     };
     let rep = log.train_mlp(
         &mut net,
@@ -352,7 +352,7 @@ pub(super) fn train_correction(
         best_val_loss: rep.best_val_loss,
         final_train_loss: rep.history.last().map(|h| h.train_loss),
     });
-    Ok(Correction {
+    Ok(CorrectionMlp {
         mlp: net,
         head: fit.head,
     })
@@ -363,7 +363,7 @@ pub(super) fn train_correction(
 pub(super) fn train_motion(
     ds: &Dataset,
     body_rows: &[usize],
-    blocks: &[Block],
+    blocks: &[ComponentBlock],
     body: &BodyCoefficients,
     val_mask: &[bool],
     cfg: &TrainConfig,
@@ -415,11 +415,11 @@ pub(super) fn train_motion(
     sizes.extend_from_slice(&cfg.motion_hidden);
     sizes.push(km);
     let mut net = Mlp::new(&sizes, cfg.seed ^ 0x70)?;
-    let tcfg = mlp::TrainConfig {
+    let tcfg = mlp::MlpTrainConfig {
         epochs: cfg.motion_epochs,
         seed: cfg.seed ^ 0x71,
         loss: Loss::Metric(gram),
-        ..mlp::TrainConfig::default()
+        ..mlp::MlpTrainConfig::default()
     };
     let rep = log.train_mlp(
         &mut net,

@@ -15,7 +15,7 @@ use crate::error::Result;
 
 /// One clip frame (a row of `clip.csv`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct ClipFrame {
+pub struct ClipRow {
     /// PanoMan's per-vertex errors (mm).
     pub panoman: PartErrors,
     /// The LBS rig's per-vertex errors (mm).
@@ -29,7 +29,7 @@ pub struct ClipFrame {
 /// What the clip gives the summary and the renders.
 pub(crate) struct ClipRun {
     pub(crate) summary: ClipSummary,
-    pub(crate) frames: Vec<ClipFrame>,
+    pub(crate) frames: Vec<ClipRow>,
     /// Stage times of the warm frames (all but the first).
     pub(crate) warm_stage_times: StageTimes,
     /// PanoMan time of the warm frames.
@@ -53,7 +53,7 @@ pub(crate) fn run(
     let (_, truths) = clip.meshes(&b.rig().generator, &b.rig().map, b.rig().topology)?;
     let mut seq = Tracking::new(b.opts.clone(), warm_fit_options(), b.ikc.clone(), false);
     let mut prev_lbs: Option<IkState> = None;
-    let mut frames: Vec<ClipFrame> = Vec::new();
+    let mut frames: Vec<ClipRow> = Vec::new();
     let mut warm_times = Vec::new();
     let mut warm_stage_times = StageTimes::new();
     let mut map_frame = None;
@@ -92,7 +92,7 @@ pub(crate) fn run(
             part_errors(&lbs.posed, truth, &b.groups),
         );
         stats.add(&fit, &ikr.posed, pe.all_mean, le.all_mean);
-        frames.push(ClipFrame {
+        frames.push(ClipRow {
             panoman: pe,
             lbs: le,
             panoman_s: secs,

@@ -37,7 +37,7 @@ pub mod summary;
 mod timing;
 mod twist;
 
-pub use clip::ClipFrame;
+pub use clip::ClipRow;
 pub use metrics::{BodyRegions, Groups, PartErrors, REGION_NAMES, RegionErrors, mean_of};
 pub use summary::*;
 
@@ -224,7 +224,7 @@ pub struct EvalOutput {
     /// The Fig. 7 curves.
     pub curves: Vec<CurvePoint>,
     /// Per clip frame (`clip.csv`).
-    pub clip_frames: Vec<ClipFrame>,
+    pub clip_frames: Vec<ClipRow>,
     /// Meshes to render.
     pub meshes: EvalMeshes,
 }
