@@ -35,7 +35,7 @@ use panoman_mesh::shell::{
     Handle, PcgOptions, PointConstraint, ShellOptions, ShellReport, ShellSolver, ShellTargets,
 };
 use panoman_mesh::{RestGeometry, Rla, Topology};
-use panoman_model::model::{Evaluator, PanoManModel, Params};
+use panoman_model::model::{BlockName, Evaluator, PanoManModel, Params};
 use serde::Serialize;
 use std::sync::Arc;
 use std::time::Instant;
@@ -875,14 +875,13 @@ impl ShellFitter {
         let guide = init.guide.as_ref().filter(|g| g.len() == nv);
         self.beta_step(guide.unwrap_or(&init.posed), &rg, &mut params, c, opts)?;
         if let Some((bl, ba)) = start_theta {
-            let fixed = |name: &str| {
+            let fixed = |name: BlockName| {
                 c.fixed
                     .as_ref()
-                    .is_some_and(|f| f.beta.get(name).is_some_and(|b| !b.is_empty()))
+                    .is_some_and(|f| f.beta.get(&name).is_some_and(|b| !b.is_empty()))
             };
-            for (b, v) in [(0usize, bl), (3, ba)] {
-                let name = self.model.blocks[b].name.clone();
-                if !fixed(&name) {
+            for (name, v) in [(BlockName::BodyLength, bl), (BlockName::BodyAngle, ba)] {
+                if !fixed(name) {
                     params.beta.insert(name, v);
                 }
             }

@@ -42,6 +42,92 @@ pub use gn::{GnOptions, GnReport};
 
 /// Names of the six β blocks, in β order.
 pub const BLOCK_NAMES: [&str; 6] = ["body_l", "face_l", "hands_l", "body_a", "face_a", "hands_a"];
+
+/// The six β blocks: {RL, RA} × {body, face, hands} (PanoMan §4). Component 0 of each block is
+/// the part's mean with a free coefficient, so a block trained with K components holds K + 1
+/// coefficients. In files a block is its name ([`BlockName::as_str`]). The variants are
+/// declared in the order of their names, so that a map keyed by blocks lists them as one keyed
+/// by names would; [`BlockName::ALL`] is the model's β order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum BlockName {
+    /// Relative dihedral angles of the body.
+    BodyAngle,
+    /// Relative edge lengths of the body.
+    BodyLength,
+    /// Relative dihedral angles of the face.
+    FaceAngle,
+    /// Relative edge lengths of the face.
+    FaceLength,
+    /// Relative dihedral angles of both hands.
+    HandsAngle,
+    /// Relative edge lengths of both hands.
+    HandsLength,
+}
+
+impl BlockName {
+    /// All six, in the model's β order (that of [`BLOCK_NAMES`]).
+    pub const ALL: [BlockName; 6] = [
+        BlockName::BodyLength,
+        BlockName::FaceLength,
+        BlockName::HandsLength,
+        BlockName::BodyAngle,
+        BlockName::FaceAngle,
+        BlockName::HandsAngle,
+    ];
+
+    /// Position in [`BlockName::ALL`] (the index into [`PanoManModel::blocks`]).
+    pub fn index(self) -> usize {
+        match self {
+            BlockName::BodyLength => 0,
+            BlockName::FaceLength => 1,
+            BlockName::HandsLength => 2,
+            BlockName::BodyAngle => 3,
+            BlockName::FaceAngle => 4,
+            BlockName::HandsAngle => 5,
+        }
+    }
+
+    /// The name used in files (`params.json` keys, `--block`): `body_l`, `face_l`, `hands_l`,
+    /// `body_a`, `face_a`, `hands_a`.
+    pub fn as_str(self) -> &'static str {
+        BLOCK_NAMES[self.index()]
+    }
+
+    /// The block of a file name (see [`BlockName::as_str`]).
+    ///
+    /// # Errors
+    /// [`ModelError::Params`] naming the unknown block and the known ones.
+    pub fn parse(name: &str) -> Result<BlockName> {
+        BlockName::ALL
+            .into_iter()
+            .find(|b| b.as_str() == name)
+            .ok_or_else(|| {
+                ModelError::Params(format!(
+                    "unknown block '{name}' (expected one of {})",
+                    BLOCK_NAMES.join(", ")
+                ))
+            })
+    }
+}
+
+impl std::fmt::Display for BlockName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl Serialize for BlockName {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(self.as_str())
+    }
+}
+
+impl<'de> Deserialize<'de> for BlockName {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        let name = <std::borrow::Cow<'de, str>>::deserialize(d)?;
+        BlockName::parse(&name).map_err(serde::de::Error::custom)
+    }
+}
 /// Format tag of model files.
 pub const MODEL_KIND: &str = "panoman.model";
 /// Format version of model files.
@@ -71,7 +157,7 @@ impl Quantity {
 #[derive(Clone, Debug)]
 pub struct ComponentBlock {
     /// Block name (one of [`BLOCK_NAMES`]).
-    pub name: String,
+    pub name: BlockName,
     /// Edge id of each column, ascending.
     pub columns: Vec<u32>,
     /// X̄ of the part on its columns.
@@ -153,9 +239,9 @@ pub struct Params {
     /// Shape coefficients (unit variance on the training identities); empty = 0.
     #[serde(default)]
     pub alpha: Vec<f64>,
-    /// β per block name; a missing block is all zeros.
+    /// β per block; a missing block is all zeros.
     #[serde(default)]
-    pub beta: BTreeMap<String, Vec<f64>>,
+    pub beta: BTreeMap<BlockName, Vec<f64>>,
     /// Translation after posing (metres).
     #[serde(default)]
     pub translation: [f64; 3],
@@ -202,13 +288,8 @@ impl Params {
         if let Some(i) = self.alpha.iter().position(|a| !a.is_finite()) {
             return Err(format!("alpha[{i}] is not finite"));
         }
-        for (name, b) in &self.beta {
-            let Some(block) = model.block(name) else {
-                return Err(format!(
-                    "unknown beta block '{name}' (known: {})",
-                    BLOCK_NAMES.join(", ")
-                ));
-            };
+        for (&name, b) in &self.beta {
+            let block = model.block(name);
             if !b.is_empty() && b.len() != block.n_components() {
                 return Err(format!(
                     "beta.{name} has {} values, the model has {} components in that block",
@@ -232,8 +313,8 @@ impl Params {
     }
 
     /// β of block `name` (zeros when missing or empty), with `k` entries.
-    pub fn beta_of(&self, name: &str, k: usize) -> Vec<f64> {
-        match self.beta.get(name) {
+    pub fn beta_of(&self, name: BlockName, k: usize) -> Vec<f64> {
+        match self.beta.get(&name) {
             Some(b) if b.len() == k => b.clone(),
             _ => vec![0.0; k],
         }
@@ -315,9 +396,9 @@ struct BlockHeader {
 }
 
 impl PanoManModel {
-    /// The block called `name`.
-    pub fn block(&self, name: &str) -> Option<&ComponentBlock> {
-        self.blocks.iter().find(|b| b.name == name)
+    /// The block `name`.
+    pub fn block(&self, name: BlockName) -> &ComponentBlock {
+        &self.blocks[name.index()]
     }
 
     /// Total number of β entries.
@@ -372,7 +453,7 @@ impl PanoManModel {
                 for (j, &e) in block.columns.iter().enumerate() {
                     out[e as usize] += block.mean[j] as f64;
                 }
-                let beta = params.beta_of(&block.name, block.n_components());
+                let beta = params.beta_of(block.name, block.n_components());
                 for (k, &bk) in beta.iter().enumerate() {
                     if bk == 0.0 {
                         continue;
@@ -414,14 +495,14 @@ impl PanoManModel {
         let bl = &self.blocks[0];
         let ba = &self.blocks[3];
         let mut x: Vec<f32> = params
-            .beta_of(&bl.name, bl.n_components())
+            .beta_of(bl.name, bl.n_components())
             .iter()
             .skip(1)
             .map(|&v| v as f32)
             .collect();
         x.extend(
             params
-                .beta_of(&ba.name, ba.n_components())
+                .beta_of(ba.name, ba.n_components())
                 .iter()
                 .skip(1)
                 .map(|&v| v as f32),
@@ -596,7 +677,7 @@ impl PanoManModel {
                 .blocks
                 .iter()
                 .map(|b| BlockHeader {
-                    name: b.name.clone(),
+                    name: b.name.as_str().to_string(),
                     n_columns: b.columns.len(),
                     n_components: b.n_components(),
                     nnz: b.components.nnz(),
@@ -800,7 +881,7 @@ fn read_blocks(s: &TensorStore, h: &Header) -> Result<Vec<ComponentBlock>> {
         )));
     }
     let mut blocks = Vec::with_capacity(6);
-    for bh in &h.blocks {
+    for (bh, name) in h.blocks.iter().zip(BlockName::ALL) {
         let p = format!("block.{}", bh.name);
         let columns = get_u32(s, &format!("{p}.columns"), &[bh.n_columns])?;
         if columns.iter().any(|&e| e as usize >= h.n_edges)
@@ -827,7 +908,7 @@ fn read_blocks(s: &TensorStore, h: &Header) -> Result<Vec<ComponentBlock>> {
         }
         let range = get_f32(s, &format!("{p}.beta_range"), &[bh.n_components, 2])?;
         blocks.push(ComponentBlock {
-            name: bh.name.clone(),
+            name,
             columns,
             mean,
             components: SparseRows {

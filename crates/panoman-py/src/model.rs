@@ -65,7 +65,7 @@ impl PyModel {
                         .map(|bi| {
                             let v = bt[off..off + bi.size].to_vec();
                             off += bi.size;
-                            (bi.name.as_str().to_string(), v)
+                            (bi.name, v)
                         })
                         .collect(),
                     rotation: rot[i],
@@ -128,9 +128,9 @@ impl PyModel {
                 let name: String = k
                     .extract()
                     .map_err(|_| invalid(py, "betas: block names must be strings"))?;
-                BlockName::parse(&name).map_err(|e| lib_err(py, e))?;
+                let block = BlockName::parse(&name).map_err(|e| lib_err(py, e.into()))?;
                 let m = mat2(py, &v, &format!("betas['{name}']"), None)?;
-                blocks.push((name, m));
+                blocks.push((block, m));
             }
         }
         let batch = alphas
@@ -157,7 +157,7 @@ impl PyModel {
                     .unwrap_or_default(),
                 beta: blocks
                     .iter()
-                    .map(|(n, (b, _, k))| (n.clone(), b[i * k..(i + 1) * k].to_vec()))
+                    .map(|(n, (b, _, k))| (*n, b[i * k..(i + 1) * k].to_vec()))
                     .collect(),
                 rotation: rotations.as_ref().map_or([0.0; 3], |r| r[i]),
                 translation: translations.as_ref().map_or([0.0; 3], |t| t[i]),
@@ -250,11 +250,7 @@ impl PyModel {
                 .map(|(i, p)| m.pose_vjp(p, c, &g[i * n..(i + 1) * n]))
                 .collect::<panoman::Result<Vec<_>>>()
         })?;
-        let names: Vec<String> = m
-            .blocks()
-            .iter()
-            .map(|bi| bi.name.as_str().to_string())
-            .collect();
+        let names: Vec<BlockName> = m.blocks().iter().map(|bi| bi.name).collect();
         let rows = |f: &dyn Fn(&panoman::Params) -> Vec<f64>| -> Bound<'py, PyArray2<f64>> {
             let data: Vec<Vec<f64>> = grads.iter().map(f).collect();
             let k = data.first().map_or(0, Vec::len);

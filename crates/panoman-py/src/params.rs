@@ -15,7 +15,7 @@ pub(crate) struct PyParams {
 pub(crate) fn beta_of(
     py: Python<'_>,
     obj: &Bound<'_, PyAny>,
-) -> PyResult<BTreeMap<String, Vec<f64>>> {
+) -> PyResult<BTreeMap<BlockName, Vec<f64>>> {
     let dict = obj
         .cast::<PyDict>()
         .map_err(|_| invalid(py, "beta: expected a dict {block name: coefficients}"))?;
@@ -24,9 +24,9 @@ pub(crate) fn beta_of(
         let name: String = k
             .extract()
             .map_err(|_| invalid(py, "beta: block names must be strings"))?;
-        BlockName::parse(&name).map_err(|e| lib_err(py, e))?;
+        let block = BlockName::parse(&name).map_err(|e| lib_err(py, e.into()))?;
         let vals = vec1(py, &v, &format!("beta['{name}']"), None)?;
-        beta.insert(name, vals);
+        beta.insert(block, vals);
     }
     Ok(beta)
 }
@@ -76,7 +76,7 @@ impl PyParams {
     fn beta<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);
         for (k, v) in &self.inner.beta {
-            d.set_item(k, out_vec(py, v))?;
+            d.set_item(k.as_str(), out_vec(py, v))?;
         }
         Ok(d)
     }

@@ -49,8 +49,7 @@ fn main() -> panoman::Result<()> {
     if body_a > 1 {
         beta[1] = 1.0;
     }
-    p.beta
-        .insert(BlockName::BodyAngle.as_str().to_string(), beta);
+    p.beta.insert(BlockName::BodyAngle, beta);
     let other = model.pose(&p, Correction::Apply)?;
     let height = |v: &[[f64; 3]]| {
         let (lo, hi) = v

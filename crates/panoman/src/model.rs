@@ -3,7 +3,8 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use panoman_mesh::geom::V3;
-use panoman_model::model::{BLOCK_NAMES, Evaluator, GnOptions, PanoManModel, Params};
+pub use panoman_model::model::BlockName;
+use panoman_model::model::{Evaluator, GnOptions, PanoManModel, Params};
 
 use crate::error::{Error, Result};
 
@@ -33,59 +34,6 @@ pub enum Encoder {
     VertexError,
     /// [`Encoder::VertexError`] with explicit iteration counts.
     VertexErrorWith(GnOptions),
-}
-
-/// The six β blocks: {RL, RA} × {body, face, hands} (PanoMan §4). Component 0 of each
-/// block is the part's mean with a free coefficient, so a block trained with K components
-/// holds K + 1 coefficients ([`BlockInfo::size`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum BlockName {
-    /// Relative edge lengths of the body.
-    BodyLength,
-    /// Relative edge lengths of the face.
-    FaceLength,
-    /// Relative edge lengths of both hands.
-    HandsLength,
-    /// Relative dihedral angles of the body.
-    BodyAngle,
-    /// Relative dihedral angles of the face.
-    FaceAngle,
-    /// Relative dihedral angles of both hands.
-    HandsAngle,
-}
-
-impl BlockName {
-    /// All six, in the model file's order.
-    pub const ALL: [BlockName; 6] = [
-        BlockName::BodyLength,
-        BlockName::FaceLength,
-        BlockName::HandsLength,
-        BlockName::BodyAngle,
-        BlockName::FaceAngle,
-        BlockName::HandsAngle,
-    ];
-
-    /// The name used in files (`params.json` keys, `--block`): `body_l`, `face_l`, `hands_l`,
-    /// `body_a`, `face_a`, `hands_a`.
-    pub fn as_str(self) -> &'static str {
-        BLOCK_NAMES[self as usize]
-    }
-
-    /// The block of a file name (see [`BlockName::as_str`]).
-    ///
-    /// # Errors
-    /// [`Error::Invalid`] naming the unknown block and the known ones.
-    pub fn parse(name: &str) -> Result<BlockName> {
-        BlockName::ALL
-            .into_iter()
-            .find(|b| b.as_str() == name)
-            .ok_or_else(|| {
-                Error::Invalid(format!(
-                    "unknown block '{name}' (expected one of {})",
-                    BLOCK_NAMES.join(", ")
-                ))
-            })
-    }
 }
 
 /// Size and support of one β block.
@@ -307,7 +255,7 @@ impl Model {
 
     /// The observed range `[lo, hi]` of each coefficient of `block` over the training rows.
     pub fn beta_range(&self, block: BlockName) -> &[[f32; 2]] {
-        &self.inner().blocks[block as usize].beta_range
+        &self.inner().blocks[block.index()].beta_range
     }
 
     /// The shape coefficients α of a rest mesh: its projection onto the shape PCA (PanoMan

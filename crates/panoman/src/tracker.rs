@@ -2,7 +2,7 @@
 use panoman_fit::fit::{FitOptions, warm_fit_options};
 use panoman_fit::ik::{IkConfig, IkState};
 use panoman_fit::{Previous, Tracking, TrackingState, ik_config_for_noise};
-use panoman_model::model::Params;
+use panoman_model::model::{BlockName, Params};
 
 use crate::error::{Error, Result};
 use crate::feet::ContactPrior;
@@ -144,8 +144,8 @@ impl Tracker {
                 w.f64s(&p.params.alpha);
                 w.u64(p.params.beta.len() as u64);
                 for (name, b) in &p.params.beta {
-                    w.u64(name.len() as u64);
-                    w.0.extend_from_slice(name.as_bytes());
+                    w.u64(name.as_str().len() as u64);
+                    w.0.extend_from_slice(name.as_str().as_bytes());
                     w.f64s(b);
                 }
                 p.params.translation.iter().for_each(|&x| w.f64(x));
@@ -214,8 +214,10 @@ impl Tracker {
                 let mut beta = std::collections::BTreeMap::new();
                 for _ in 0..r.usize()? {
                     let n = r.usize()?;
-                    let name = String::from_utf8(r.take(n)?.to_vec())
-                        .map_err(|_| bad("block name is not UTF-8"))?;
+                    let name = std::str::from_utf8(r.take(n)?)
+                        .ok()
+                        .and_then(|n| BlockName::parse(n).ok())
+                        .ok_or_else(|| bad("unknown block name"))?;
                     beta.insert(name, r.f64s()?);
                 }
                 let translation = r.f64x3()?;

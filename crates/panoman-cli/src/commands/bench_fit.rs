@@ -49,7 +49,7 @@ fn random_params(model: &Model, seed: u64) -> Vec<Params> {
                             0.5 * (lo + hi) + 0.25 * (hi - lo) * (2.0 * u() - 1.0)
                         })
                         .collect();
-                    (b.as_str().to_string(), beta)
+                    (b, beta)
                 })
                 .collect(),
             ..Default::default()

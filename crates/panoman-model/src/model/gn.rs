@@ -134,7 +134,7 @@ impl Layout {
     fn flatten(&self, model: &super::PanoManModel, p: &Params) -> Vec<f64> {
         let mut out = Vec::with_capacity(self.len());
         for b in &model.blocks {
-            out.extend(p.beta_of(&b.name, b.n_components()));
+            out.extend(p.beta_of(b.name, b.n_components()));
         }
         out
     }

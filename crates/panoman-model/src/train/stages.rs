@@ -2,6 +2,7 @@
 //! decompositions and the blocks, the correction MLP and the motion MLP.
 
 use super::*;
+use crate::model::BlockName;
 
 /// The progress callback and the report sections the training stages fill.
 pub(super) struct StageLog<'a> {
@@ -219,7 +220,7 @@ pub(super) fn sorted_blocks(
             beta_range.push([lo - pad, hi + pad]);
         }
         blocks.push(ComponentBlock {
-            name: BLOCK_NAMES[b].into(),
+            name: BlockName::ALL[b],
             columns: cols[b % 3].clone(),
             mean: vec![0.0; dec.n_columns()],
             components: SparseRows {

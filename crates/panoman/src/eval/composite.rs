@@ -31,8 +31,8 @@ pub(crate) fn compose(body: &Params, face: &Params, hands: &Params) -> Params {
         (hands, [BlockName::HandsLength, BlockName::HandsAngle]),
     ] {
         for blk in blocks {
-            if let Some(v) = src.beta.get(blk.as_str()) {
-                p.beta.insert(blk.as_str().to_string(), v.clone());
+            if let Some(v) = src.beta.get(&blk) {
+                p.beta.insert(blk, v.clone());
             }
         }
     }
