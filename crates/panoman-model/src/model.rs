@@ -1118,7 +1118,7 @@ impl Evaluator {
             let beta = beta?;
             for (i, &b) in enc.blocks.iter().enumerate() {
                 params.beta.insert(
-                    m.blocks[b].name.clone(),
+                    m.blocks[b].name,
                     beta[enc.offsets[i]..enc.offsets[i + 1]].to_vec(),
                 );
             }

@@ -140,10 +140,8 @@ impl Layout {
     }
     fn write(&self, model: &super::PanoManModel, beta: &[f64], p: &mut Params) {
         for (i, b) in model.blocks.iter().enumerate() {
-            p.beta.insert(
-                b.name.clone(),
-                beta[self.offsets[i]..self.offsets[i + 1]].to_vec(),
-            );
+            p.beta
+                .insert(b.name, beta[self.offsets[i]..self.offsets[i + 1]].to_vec());
         }
     }
 }
