@@ -820,7 +820,7 @@ impl ShellFitter {
         if let Some(f) = &c.fixed {
             for (name, b) in &f.beta {
                 if !b.is_empty() {
-                    params.beta.insert(name.clone(), b.clone());
+                    params.beta.insert(*name, b.clone());
                 }
             }
         }

@@ -399,7 +399,7 @@ fn encoder_linearization_matches_finite_differences() {
         let d: Vec<f64> = (0..blk.n_components())
             .map(|k| (1.3 * k as f64 + 0.7 * b as f64).sin())
             .collect();
-        dir.beta.insert(blk.name.clone(), d);
+        dir.beta.insert(blk.name, d);
     }
     let shifted = |s: f64| {
         let mut q = p.clone();
