@@ -540,7 +540,7 @@ fn pose_gradient_matches_finite_differences() {
     let mut d = zero.clone();
     for (b, blk) in model.blocks.iter().enumerate() {
         d.beta
-            .insert(blk.name.clone(), wave(blk.n_components(), 0.7 * b as f64));
+            .insert(blk.name, wave(blk.n_components(), 0.7 * b as f64));
     }
     groups.push(("beta", d));
     let mut d = zero.clone();
