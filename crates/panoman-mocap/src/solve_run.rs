@@ -242,20 +242,7 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
     } else {
         None
     };
-    let frame_reports: Vec<FrameReport> = solved
-        .iter()
-        .map(|s| {
-            let (mean_mm, max_mm, n) = mean_max_mm(s.residuals.iter().copied());
-            FrameReport {
-                frame: s.frame,
-                markers: n,
-                mean_mm,
-                max_mm,
-                outliers: s.outliers,
-                ms: 1e3 * s.seconds,
-            }
-        })
-        .collect();
+    let frame_reports: Vec<FrameReport> = solved.iter().map(FrameReport::of).collect();
     let (mean_all, max_all, _) =
         mean_max_mm(solved.iter().flat_map(|s| s.residuals.iter().copied()));
     let warm: Vec<f64> = solved.iter().skip(1).map(|s| s.seconds).collect();
@@ -284,35 +271,13 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
     if let Some(h) = &held {
         times.insert("held_out_s".to_string(), h.seconds);
     }
-    let jitter = {
-        let dt = step.max(1) as f64 / seq.rate_hz;
-        let meshes: Vec<&[V3]> = solved.iter().map(|f| f.vertices.as_slice()).collect();
-        let observed: Vec<&[V3]> = solved.iter().map(|f| seq.frame(f.frame)).collect();
-        let placed: Vec<Vec<V3>> = solved
-            .iter()
-            .zip(&observed)
-            .map(|(f, obs)| {
-                solver
-                    .model_markers(f.map(&cal), &f.vertices)
-                    .into_iter()
-                    .zip(obs.iter())
-                    .map(|(m, o)| {
-                        if o.iter().all(|c| c.is_finite()) {
-                            m
-                        } else {
-                            [f64::NAN; 3]
-                        }
-                    })
-                    .collect()
-            })
-            .collect();
-        let placed: Vec<&[V3]> = placed.iter().map(Vec::as_slice).collect();
-        Jitter {
-            mesh_vertices: mean_acceleration(&meshes, dt),
-            model_markers: mean_acceleration(&placed, dt),
-            observed_markers: mean_acceleration(&observed, dt),
-        }
-    };
+    let jitter = jitter_of(
+        &solver,
+        &seq,
+        &solved,
+        &cal,
+        step.max(1) as f64 / seq.rate_hz,
+    );
     let report = SolveReport {
         method: req.options.method,
         capture: req.markers.display().to_string(),
@@ -351,6 +316,58 @@ pub fn solve_capture(model: &panoman::Model, req: &SolveRequest) -> Result<Solve
         frames: solved,
         bone_names: solver.bone_names().to_vec(),
     })
+}
+
+impl FrameReport {
+    /// The report of a solved frame.
+    fn of(s: &SolvedFrame) -> FrameReport {
+        let (mean_mm, max_mm, n) = mean_max_mm(s.residuals.iter().copied());
+        FrameReport {
+            frame: s.frame,
+            markers: n,
+            mean_mm,
+            max_mm,
+            outliers: s.outliers,
+            ms: 1e3 * s.seconds,
+        }
+    }
+}
+
+/// The mean accelerations of the solved frames `dt` seconds apart: of the mesh vertices, of
+/// the model markers (where observed) and of the observed markers.
+fn jitter_of(
+    solver: &MarkerSolver,
+    seq: &MarkerSequence,
+    solved: &[SolvedFrame],
+    cal: &Calibration,
+    dt: f64,
+) -> Jitter {
+    let meshes: Vec<&[V3]> = solved.iter().map(|f| f.vertices.as_slice()).collect();
+    let observed: Vec<&[V3]> = solved.iter().map(|f| seq.frame(f.frame)).collect();
+    let placed: Vec<Vec<V3>> = solved
+        .iter()
+        .zip(&observed)
+        .map(|(f, obs)| {
+            solver
+                .model_markers(f.map(cal), &f.vertices)
+                .into_iter()
+                .zip(obs.iter())
+                .map(|(m, o)| {
+                    if o.iter().all(|c| c.is_finite()) {
+                        m
+                    } else {
+                        [f64::NAN; 3]
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let placed: Vec<&[V3]> = placed.iter().map(Vec::as_slice).collect();
+    Jitter {
+        mesh_vertices: mean_acceleration(&meshes, dt),
+        model_markers: mean_acceleration(&placed, dt),
+        observed_markers: mean_acceleration(&observed, dt),
+    }
 }
 
 /// CPU time of this process, all threads, user + system (s; Linux `/proc/self/stat`, in

@@ -252,7 +252,6 @@ pub fn track_generated(
     let topology = model
         .output_topology()
         .map_err(|e| inv(format!("model: {e}")))?;
-    let names = rig.generator.bone_names();
     let groups = Groups::of_model(model);
     let feet = panoman_human::keypoints::KeypointGroup::Feet.range();
     let has_feet = feet.clone().all(|i| {
@@ -276,49 +275,16 @@ pub fn track_generated(
     };
     let (mut pm, mut lbs) = (tracker(Method::PanoMan)?, tracker(Method::Lbs)?);
     let setup_seconds = t_setup.elapsed().as_secs_f64();
-    let mut identity: Option<(panoman_human::params::ShapeParams, _)> = None;
-    // The ground truth of frame `(f, p)`: its mesh on the model's topology and its targets.
-    let mut truth_of = |f: usize, p: &GeneratorParams| -> Result<(Vec<V3>, Targets)> {
-        let at = |e: &dyn std::fmt::Display| inv(format!("frame {f}: {e}"));
-        p.shape.validate().map_err(|e| at(&e))?;
-        p.pose.validate(names).map_err(|e| at(&e))?;
-        if identity.as_ref().is_none_or(|(s, _)| *s != p.shape) {
-            let id = rig.generator.identity(&p.shape).map_err(|e| at(&e))?;
-            identity = Some((p.shape.clone(), id));
-        }
-        let id = &identity.as_ref().expect("identity built above").1;
-        let truth = rig.map.map(topology, &id.pose(&p.pose).vertices);
-        let mut targets = Targets::from_keypoints(&model.keypoints(&truth).map_err(|e| at(&e))?);
-        if opts.without_feet {
-            targets.keypoints = std::mem::take(&mut targets.keypoints)
-                .without_group(panoman_human::keypoints::KeypointGroup::Feet);
-        }
-        Ok((truth, targets))
+    let mut truth = GroundTruth {
+        model,
+        rig: &rig,
+        topology,
+        without_feet: opts.without_feet,
+        identity: None,
     };
-    let calibration = if opts.shape_frames > 0 {
-        let picked = spread_frames(frames.len(), opts.shape_frames);
-        let t = Instant::now();
-        let targets = picked
-            .iter()
-            .map(|&i| truth_of(frames[i].0, &frames[i].1).map(|(_, t)| t))
-            .collect::<Result<Vec<_>>>()?;
-        let cal = pm
-            .calibrate_shape(&targets, &ShapeCalibrationOptions::default())
-            .map_err(|e| inv(format!("shape calibration: {e}")))?;
-        lbs.set_shape(Some(cal.shape.clone()));
-        Some(TrackCalibration {
-            frames: picked.iter().map(|&i| frames[i].0).collect(),
-            knobs: cal
-                .knobs
-                .iter()
-                .map(|(k, v)| (k.name().to_string(), *v))
-                .collect(),
-            before_mm: cal.before_mm,
-            after_mm: cal.after_mm,
-            seconds: t.elapsed().as_secs_f64(),
-        })
-    } else {
-        None
+    let calibration = match opts.shape_frames {
+        0 => None,
+        n => Some(calibrate(&mut pm, &mut lbs, &mut truth, frames, n)?),
     };
     if let Some(co) = &opts.contacts {
         if !(opts.frame_rate.is_finite() && opts.frame_rate > 0.0) {
@@ -331,7 +297,7 @@ pub fn track_generated(
         let ankles = frames
             .iter()
             .map(|(f, p)| {
-                let a = panoman::feet::ankles(&truth_of(*f, p)?.1)
+                let a = panoman::feet::ankles(&truth.frame(*f, p)?.1)
                     .map_err(|name| inv(format!("frame {f}: no {name} keypoint")))?;
                 Ok((*f as f64 / opts.frame_rate, a))
             })
@@ -345,7 +311,7 @@ pub fn track_generated(
     let mut gen_s = 0.0;
     for (k, (f, p)) in frames.iter().enumerate() {
         let t = Instant::now();
-        let (truth, targets) = truth_of(*f, p)?;
+        let (truth, targets) = truth.frame(*f, p)?;
         gen_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let a = pm
@@ -403,6 +369,75 @@ pub fn track_generated(
         }),
         frames: rows,
         worst,
+    })
+}
+
+/// The ground truth of [`track_generated`]'s frames: the rig's meshes on the model's topology
+/// and their keypoints as targets; an identity is built once per distinct shape.
+struct GroundTruth<'a> {
+    model: &'a Model,
+    rig: &'a panoman_human::rigfile::RigData,
+    topology: panoman_human::outputs::OutputTopology,
+    without_feet: bool,
+    identity: Option<(
+        panoman_human::params::ShapeParams,
+        panoman_human::generator::Identity<'a>,
+    )>,
+}
+
+impl GroundTruth<'_> {
+    /// Frame `f` of parameters `p`: its mesh and its targets.
+    fn frame(&mut self, f: usize, p: &GeneratorParams) -> Result<(Vec<V3>, Targets)> {
+        let at = |e: &dyn std::fmt::Display| inv(format!("frame {f}: {e}"));
+        p.shape.validate().map_err(|e| at(&e))?;
+        p.pose
+            .validate(self.rig.generator.bone_names())
+            .map_err(|e| at(&e))?;
+        if self.identity.as_ref().is_none_or(|(s, _)| *s != p.shape) {
+            let id = self.rig.generator.identity(&p.shape).map_err(|e| at(&e))?;
+            self.identity = Some((p.shape.clone(), id));
+        }
+        let id = &self.identity.as_ref().expect("identity built above").1;
+        let truth = self.rig.map.map(self.topology, &id.pose(&p.pose).vertices);
+        let kp = self.model.keypoints(&truth).map_err(|e| at(&e))?;
+        let mut targets = Targets::from_keypoints(&kp);
+        if self.without_feet {
+            targets.keypoints = std::mem::take(&mut targets.keypoints)
+                .without_group(panoman_human::keypoints::KeypointGroup::Feet);
+        }
+        Ok((truth, targets))
+    }
+}
+
+/// The identity's lengths calibrated on `n` frames spread over `frames`
+/// ([`Tracker::calibrate_shape`]), given to both trackers.
+fn calibrate(
+    pm: &mut Tracker,
+    lbs: &mut Tracker,
+    truth: &mut GroundTruth<'_>,
+    frames: &[(usize, GeneratorParams)],
+    n: usize,
+) -> Result<TrackCalibration> {
+    let picked = spread_frames(frames.len(), n);
+    let t = Instant::now();
+    let targets = picked
+        .iter()
+        .map(|&i| truth.frame(frames[i].0, &frames[i].1).map(|(_, t)| t))
+        .collect::<Result<Vec<_>>>()?;
+    let cal = pm
+        .calibrate_shape(&targets, &ShapeCalibrationOptions::default())
+        .map_err(|e| inv(format!("shape calibration: {e}")))?;
+    lbs.set_shape(Some(cal.shape.clone()));
+    Ok(TrackCalibration {
+        frames: picked.iter().map(|&i| frames[i].0).collect(),
+        knobs: cal
+            .knobs
+            .iter()
+            .map(|(k, v)| (k.name().to_string(), *v))
+            .collect(),
+        before_mm: cal.before_mm,
+        after_mm: cal.after_mm,
+        seconds: t.elapsed().as_secs_f64(),
     })
 }
 

@@ -2,7 +2,7 @@
 //! angles and face units, from the grid for the phenotype, plus the rest frames' part.
 
 use super::grid::{PhenColumn, PhenGrid, on_kink};
-use super::keypoint_model::{Ctx, Current, Kin, PointModel, Skinned, pair_sums, pair_term};
+use super::keypoint_model::{Ctx, Current, Kin, PointModel, PtEval, Skinned, pair_sums, pair_term};
 use super::lm::{Row, Var, VarSet};
 use super::solver::IkSolver;
 use super::targets::PointTarget;
@@ -11,6 +11,11 @@ use crate::error::{FitError, Result};
 use panoman_human::params::ShapeParams;
 use panoman_mesh::geom::{V3, add, cross, dot, matmul, matvec, scale, sub};
 use rayon::prelude::*;
+
+/// A Jacobian column: its variable, keypoint values and point values (with a point model).
+type Col = (usize, Vec<V3>, Option<Vec<V3>>);
+/// A column's keypoint values and point values (with a point model).
+type ColValues = (Vec<V3>, Option<Vec<V3>>);
 /// The Jacobian of one iteration (see [`IkSolver::jacobian`]).
 pub(super) struct Jacobian {
     /// Per target row, `(column, ∂K/∂var)`.
@@ -256,88 +261,13 @@ impl IkSolver {
         ctx: Ctx<'_>,
         prior_grad: [f64; 6],
     ) -> Jacobian {
-        let st = &cur.state;
         let grid = ctx.grid;
         let pts = match (ctx.pts, &cur.pts) {
             (Some(m), Some(pe)) => Some((m, pe)),
             _ => None,
         };
         let pm = pts.map(|p| p.0);
-        // Phenotype columns. On a kink the side is chosen by the gradient: the forward
-        // derivative if it says "increase", the backward one if it says "decrease", else the
-        // value is held for this iteration (a kink minimum along it).
-        type Col = (usize, Vec<V3>, Option<Vec<V3>>);
-        // A column's keypoint values and point values (with a point model).
-        type ColValues = (Vec<V3>, Option<Vec<V3>>);
-        let mut phen_cols: Vec<Col> = Vec::new();
-        let mut held = Vec::new();
-        let mut sides = [1i8; 6];
-        {
-            let beta = &st.phenotype;
-            // The points' rest derivatives of every column (and kink side) at once.
-            let mut requests = Vec::new();
-            for i in 0..6 {
-                if vs.phen[i].is_some() {
-                    requests.push((i, 1i8));
-                    if on_kink(i, beta[i]) {
-                        requests.push((i, -1));
-                    }
-                }
-            }
-            let dxs: Vec<Option<Vec<V3>>> = match pm {
-                Some(m) => m.dx(beta, &requests).into_iter().map(Some).collect(),
-                None => vec![None; requests.len()],
-            };
-            // Every requested column's values (a frame part each: independent, in parallel).
-            let cols = self.phen_columns(grid, beta, &requests);
-            let mut values: Vec<Option<ColValues>> = cols
-                .par_iter()
-                .zip(dxs.into_par_iter())
-                .map(|(col, dx)| Some(self.phen_values(cur, col, pm.zip(dx))))
-                .collect();
-            for i in 0..6 {
-                let Some(col) = vs.phen[i] else { continue };
-                let mut values = |side: i8| {
-                    let r = requests
-                        .iter()
-                        .position(|&q| q == (i, side))
-                        .expect("requested");
-                    values[r].take().expect("used once")
-                };
-                let fwd = values(1);
-                if !on_kink(i, beta[i]) {
-                    phen_cols.push((col, fwd.0, fwd.1));
-                    continue;
-                }
-                let back = values(-1);
-                let grad = |v: &(Vec<V3>, Option<Vec<V3>>)| -> f64 {
-                    let data: f64 = rows
-                        .iter()
-                        .map(|r| r.weight * dot(v.0[r.row], sub(cur.k[r.row], r.target)))
-                        .sum();
-                    let pdata: f64 = match (pts, &v.1) {
-                        (Some((m, pe)), Some(pv)) => m
-                            .rows
-                            .iter()
-                            .enumerate()
-                            .map(|(p, r)| {
-                                r.weight * dot(r.proj(pv[p]), r.proj(sub(pe.p[p], r.target)))
-                            })
-                            .sum(),
-                        _ => 0.0,
-                    };
-                    data + pdata + prior_grad[i]
-                };
-                if grad(&fwd) < 0.0 {
-                    phen_cols.push((col, fwd.0, fwd.1));
-                } else if grad(&back) > 0.0 {
-                    sides[i] = -1;
-                    phen_cols.push((col, back.0, back.1));
-                } else {
-                    held.push(col);
-                }
-            }
-        }
+        let (phen_cols, held, sides) = self.phenotype_columns(vs, cur, rows, grid, pts, prior_grad);
         // Face units: frame part for the units that move the joints of a posable bone.
         // (Independent columns: in parallel, collected in unit order.)
         let unit_frame_cols: Vec<Col> = self
@@ -403,6 +333,88 @@ impl IkSolver {
             held,
             sides,
         }
+    }
+
+    /// The Jacobian's phenotype columns: per free phenotype value its keypoint (and point)
+    /// derivatives. On a kink the side is chosen by the gradient: the forward derivative if it
+    /// says "increase", the backward one if it says "decrease", else the value is held for this
+    /// iteration (a kink minimum along it). Returns the columns, the held ones and the sides.
+    fn phenotype_columns(
+        &self,
+        vs: &VarSet,
+        cur: &Current,
+        rows: &[Row],
+        grid: &PhenGrid,
+        pts: Option<(&PointModel, &PtEval)>,
+        prior_grad: [f64; 6],
+    ) -> (Vec<Col>, Vec<usize>, [i8; 6]) {
+        let pm = pts.map(|p| p.0);
+        let mut phen_cols: Vec<Col> = Vec::new();
+        let mut held = Vec::new();
+        let mut sides = [1i8; 6];
+        let beta = &cur.state.phenotype;
+        // The points' rest derivatives of every column (and kink side) at once.
+        let mut requests = Vec::new();
+        for i in 0..6 {
+            if vs.phen[i].is_some() {
+                requests.push((i, 1i8));
+                if on_kink(i, beta[i]) {
+                    requests.push((i, -1));
+                }
+            }
+        }
+        let dxs: Vec<Option<Vec<V3>>> = match pm {
+            Some(m) => m.dx(beta, &requests).into_iter().map(Some).collect(),
+            None => vec![None; requests.len()],
+        };
+        // Every requested column's values (a frame part each: independent, in parallel).
+        let cols = self.phen_columns(grid, beta, &requests);
+        let mut values: Vec<Option<ColValues>> = cols
+            .par_iter()
+            .zip(dxs.into_par_iter())
+            .map(|(col, dx)| Some(self.phen_values(cur, col, pm.zip(dx))))
+            .collect();
+        for i in 0..6 {
+            let Some(col) = vs.phen[i] else { continue };
+            let mut values = |side: i8| {
+                let r = requests
+                    .iter()
+                    .position(|&q| q == (i, side))
+                    .expect("requested");
+                values[r].take().expect("used once")
+            };
+            let fwd = values(1);
+            if !on_kink(i, beta[i]) {
+                phen_cols.push((col, fwd.0, fwd.1));
+                continue;
+            }
+            let back = values(-1);
+            let grad = |v: &(Vec<V3>, Option<Vec<V3>>)| -> f64 {
+                let data: f64 = rows
+                    .iter()
+                    .map(|r| r.weight * dot(v.0[r.row], sub(cur.k[r.row], r.target)))
+                    .sum();
+                let pdata: f64 = match (pts, &v.1) {
+                    (Some((m, pe)), Some(pv)) => m
+                        .rows
+                        .iter()
+                        .enumerate()
+                        .map(|(p, r)| r.weight * dot(r.proj(pv[p]), r.proj(sub(pe.p[p], r.target))))
+                        .sum(),
+                    _ => 0.0,
+                };
+                data + pdata + prior_grad[i]
+            };
+            if grad(&fwd) < 0.0 {
+                phen_cols.push((col, fwd.0, fwd.1));
+            } else if grad(&back) > 0.0 {
+                sides[i] = -1;
+                phen_cols.push((col, back.0, back.1));
+            } else {
+                held.push(col);
+            }
+        }
+        (phen_cols, held, sides)
     }
 
     /// The world axes `ω_ca = G_c n_a` of the free bone angles (module docs), per bone (zero
