@@ -435,43 +435,36 @@ pub(super) fn group_errors(
     out
 }
 
-/// Builds the TC-133 definitions on both topologies (see the module docs): surface points
-/// picked on the default identity's rest mesh, regressors fitted on `config.n_train`
-/// generated samples and evaluated on `config.n_test` held-out ones.
-///
-/// # Errors
-/// A rule that finds no landmark, a missing bone or label, a singular fit (one line).
-pub fn build_definitions(
+/// The index of rig bone `name`.
+fn bone_index(generator: &Generator, name: &str) -> Result<usize> {
+    generator
+        .bone_names()
+        .iter()
+        .position(|b| b == name)
+        .ok_or_else(|| HumanError::Invalid(format!("the rig has no bone `{name}`")))
+}
+
+/// The surface keypoints on the default identity's rest mesh `rest` (full template): the face
+/// landmarks (and the nose tip as keypoint 1), the fingertips and the toe tips (rays along
+/// their bones), and the heels (rays from the ankles along [`HEEL_DIRECTION`]); `None` for
+/// the regressed keypoints.
+fn surface_points(
     generator: &Generator,
     template: &Template,
-    small: &SmallTopology,
     regions: &Regions,
-    config: &FitConfig,
-) -> Result<KeypointDefinitions> {
-    let bone = |name: &str| -> Result<usize> {
-        generator
-            .bone_names()
-            .iter()
-            .position(|b| b == name)
-            .ok_or_else(|| HumanError::Invalid(format!("the rig has no bone `{name}`")))
-    };
-    let map = crate::outputs::TopologyMap::new(generator, template, small)?;
-    let default_id = generator.identity(&ShapeParams::default())?;
-    let rest: Vec<V3> = map.to_full(default_id.rest_vertices());
-    let rest_small = small.prolong(&rest);
-    let heads = default_id.bone_heads().to_vec();
-    let tails = default_id.bone_tails().to_vec();
-    let names = keypoint_names();
-
-    // Surface points.
+    rest: &[V3],
+    heads: &[V3],
+    tails: &[V3],
+) -> Result<Vec<Option<Binding>>> {
+    let bone = |name: &str| bone_index(generator, name);
     let mut surface: Vec<Option<Binding>> = vec![None; N_KEYPOINTS];
-    let face = face_landmarks(template, regions, &rest)?;
+    let face = face_landmarks(template, regions, rest)?;
     for (k, b) in face.iter().enumerate() {
         surface[FACE_OFFSET + k] = Some(*b);
     }
     surface[1] = Some(face[30]);
     let surf = Surface {
-        pos: &rest,
+        pos: rest,
         faces: &template.mesh.faces,
     };
     for (offset, side, part) in [
@@ -512,8 +505,15 @@ pub fn build_definitions(
             .ok_or_else(|| HumanError::Invalid(format!("no heel below `foot.{side}`")))?;
         surface[base + 2] = Some(hit);
     }
+    Ok(surface)
+}
 
-    // Regressed keypoints and their candidate vertices.
+/// The regressed keypoints and what each regresses on the generated meshes: bone heads (neck,
+/// body joints, hand joints other than the tips), the mid-hip, and the pupils (eyeball
+/// vertices about the eye bones); in keypoint order.
+fn regressed_targets(generator: &Generator) -> Result<Vec<(usize, Target)>> {
+    let bone = |name: &str| bone_index(generator, name);
+    let names = keypoint_names();
     let mut targets: Vec<(usize, Target)> = Vec::new();
     targets.push((0, Target::Head(bone("neck01")?)));
     targets.push((
@@ -551,10 +551,21 @@ pub fn build_definitions(
         ));
     }
     targets.sort_by_key(|t| t.0);
+    Ok(targets)
+}
 
-    // Candidates: the nearest vertices of the rest target among the allowed ones.
-    let rest_posed = default_id.pose(&PoseParams::default());
-    let small_regions = Regions::small(regions, small)?;
+/// The candidate vertices of each regressed keypoint on the full and the small template: the
+/// nearest ones to its target on the default identity's rest pose (`posed`) among the
+/// vertices its group may read (body joints the body's, the wrists also their hand's, so that
+/// gestures and expressions do not move them; pupils the face's; hand joints their hand's).
+fn candidates(
+    targets: &[(usize, Target)],
+    posed: &Posed,
+    (rest, rest_small): (&[V3], &[V3]),
+    (regions, small_regions): (&Regions, &Regions),
+    config: &FitConfig,
+) -> (Vec<Vec<u32>>, Vec<Vec<u32>>) {
+    let names = keypoint_names();
     let hand_full = [
         regions.mask(Part::LeftHand, 3).vertex_ids(),
         regions.mask(Part::RightHand, 3).vertex_ids(),
@@ -579,16 +590,16 @@ pub fn build_definitions(
         body_only(regions, Some(Part::RightHand)),
     ];
     let body_small = [
-        body_only(&small_regions, None),
-        body_only(&small_regions, Some(Part::LeftHand)),
-        body_only(&small_regions, Some(Part::RightHand)),
+        body_only(small_regions, None),
+        body_only(small_regions, Some(Part::LeftHand)),
+        body_only(small_regions, Some(Part::RightHand)),
     ];
     let face_full = regions.vertices_of(Part::Face);
     let face_small = small_regions.vertices_of(Part::Face);
     let mut cand_full: Vec<Vec<u32>> = Vec::new();
     let mut cand_small: Vec<Vec<u32>> = Vec::new();
-    for (i, t) in &targets {
-        let p = t.eval(&rest_posed);
+    for (i, t) in targets {
+        let p = t.eval(posed);
         let (af, as_, kf, ks) = match KeypointGroup::of(*i) {
             KeypointGroup::Body | KeypointGroup::Feet => {
                 let w = match names[*i].as_str() {
@@ -622,9 +633,116 @@ pub fn build_definitions(
                 config.k_small_hand,
             ),
         };
-        cand_full.push(nearest(p, af, &rest, kf));
-        cand_small.push(nearest(p, as_, &rest_small, ks));
+        cand_full.push(nearest(p, af, rest, kf));
+        cand_small.push(nearest(p, as_, rest_small, ks));
     }
+    (cand_full, cand_small)
+}
+
+/// The regressors of `targets` on one topology, each fitted by ridge least squares to the
+/// training samples over its candidate vertices (`keep` lists the vertices the samples
+/// carry), and their errors on the held-out samples: the rows, per group and per keypoint.
+fn fit_and_evaluate(
+    targets: &[(usize, Target)],
+    cands: &[Vec<u32>],
+    keep: &[u32],
+    (kept_train, train_truth): (&[Vec<V3>], &[Vec<V3>]),
+    (kept_test, test_truth): (&[Vec<V3>], &[Vec<V3>]),
+    config: &FitConfig,
+) -> Result<FitResult> {
+    let names = keypoint_names();
+    let col = |v: u32| keep.binary_search(&v).unwrap_or(0);
+    let rows: Vec<Option<Vec<(u32, f64)>>> = cands
+        .par_iter()
+        .enumerate()
+        .map(|(c, cand)| {
+            let cols: Vec<usize> = cand.iter().map(|&v| col(v)).collect();
+            let ridge = match KeypointGroup::of(targets[c].0) {
+                KeypointGroup::Body | KeypointGroup::Feet => config.ridge_body,
+                KeypointGroup::Face => config.ridge_pupil,
+                _ => config.ridge_hand,
+            };
+            let w = fit_regressor(kept_train, train_truth, c, &cols, ridge)?;
+            let mut row: Vec<(u32, f64)> = cand.iter().copied().zip(w).collect();
+            row.sort_by_key(|e| e.0);
+            Some(row)
+        })
+        .collect();
+    let mut out = Vec::with_capacity(rows.len());
+    for (c, r) in rows.into_iter().enumerate() {
+        out.push(r.ok_or_else(|| {
+            HumanError::Invalid(format!(
+                "singular fit for keypoint `{}`",
+                names[targets[c].0]
+            ))
+        })?);
+    }
+    let err: Vec<Vec<f64>> = kept_test
+        .iter()
+        .zip(test_truth)
+        .map(|(pos, truth)| {
+            out.iter()
+                .enumerate()
+                .map(|(c, row)| {
+                    let mut p = [0.0; 3];
+                    for &(v, w) in row {
+                        p = add(p, scale(pos[col(v)], w));
+                    }
+                    norm(sub(p, truth[c]))
+                })
+                .collect()
+        })
+        .collect();
+    let per = (0..out.len())
+        .map(|c| {
+            let e = err.iter().map(|r| r[c]);
+            let n = err.len().max(1) as f64;
+            KeypointError {
+                index: targets[c].0,
+                mean_mm: 1e3 * e.clone().sum::<f64>() / n,
+                max_mm: 1e3 * e.fold(0.0, f64::max),
+            }
+        })
+        .collect();
+    let groups = group_errors(targets, &out, &err);
+    Ok((out, groups, per))
+}
+
+/// Builds the TC-133 definitions on both topologies (see the module docs): surface points
+/// picked on the default identity's rest mesh, regressors fitted on `config.n_train`
+/// generated samples and evaluated on `config.n_test` held-out ones.
+///
+/// # Errors
+/// A rule that finds no landmark, a missing bone or label, a singular fit (one line).
+pub fn build_definitions(
+    generator: &Generator,
+    template: &Template,
+    small: &SmallTopology,
+    regions: &Regions,
+    config: &FitConfig,
+) -> Result<KeypointDefinitions> {
+    let map = crate::outputs::TopologyMap::new(generator, template, small)?;
+    let default_id = generator.identity(&ShapeParams::default())?;
+    let rest: Vec<V3> = map.to_full(default_id.rest_vertices());
+    let rest_small = small.prolong(&rest);
+    let heads = default_id.bone_heads().to_vec();
+    let tails = default_id.bone_tails().to_vec();
+    let names = keypoint_names();
+
+    let surface = surface_points(generator, template, regions, &rest, &heads, &tails)?;
+    // Regressed keypoints and their candidate vertices.
+    let targets = regressed_targets(generator)?;
+
+    // Candidates: the nearest vertices of the rest target among the allowed ones.
+    let rest_posed = default_id.pose(&PoseParams::default());
+    let small_regions = Regions::small(regions, small)?;
+    let (cand_full, cand_small) = candidates(
+        &targets,
+        &rest_posed,
+        (&rest, &rest_small),
+        (regions, &small_regions),
+        config,
+    );
     let union = |c: &[Vec<u32>]| -> Vec<u32> {
         let mut u: Vec<u32> = c.iter().flatten().copied().collect();
         u.sort_unstable();
@@ -656,71 +774,22 @@ pub fn build_definitions(
     )?;
 
     // Fit and evaluate on both topologies.
-    let fit = |cands: &[Vec<u32>],
-               keep: &[u32],
-               kept_train: &[Vec<V3>],
-               kept_test: &[Vec<V3>]|
-     -> Result<FitResult> {
-        let col = |v: u32| keep.binary_search(&v).unwrap_or(0);
-        let rows: Vec<Option<Vec<(u32, f64)>>> = cands
-            .par_iter()
-            .enumerate()
-            .map(|(c, cand)| {
-                let cols: Vec<usize> = cand.iter().map(|&v| col(v)).collect();
-                let ridge = match KeypointGroup::of(builder.targets[c].0) {
-                    KeypointGroup::Body | KeypointGroup::Feet => config.ridge_body,
-                    KeypointGroup::Face => config.ridge_pupil,
-                    _ => config.ridge_hand,
-                };
-                let w = fit_regressor(kept_train, &train.truth, c, &cols, ridge)?;
-                let mut row: Vec<(u32, f64)> = cand.iter().copied().zip(w).collect();
-                row.sort_by_key(|e| e.0);
-                Some(row)
-            })
-            .collect();
-        let mut out = Vec::with_capacity(rows.len());
-        for (c, r) in rows.into_iter().enumerate() {
-            out.push(r.ok_or_else(|| {
-                HumanError::Invalid(format!(
-                    "singular fit for keypoint `{}`",
-                    names[builder.targets[c].0]
-                ))
-            })?);
-        }
-        let err: Vec<Vec<f64>> = kept_test
-            .iter()
-            .zip(&test.truth)
-            .map(|(pos, truth)| {
-                out.iter()
-                    .enumerate()
-                    .map(|(c, row)| {
-                        let mut p = [0.0; 3];
-                        for &(v, w) in row {
-                            p = add(p, scale(pos[col(v)], w));
-                        }
-                        norm(sub(p, truth[c]))
-                    })
-                    .collect()
-            })
-            .collect();
-        let per = (0..out.len())
-            .map(|c| {
-                let e = err.iter().map(|r| r[c]);
-                let n = err.len().max(1) as f64;
-                KeypointError {
-                    index: builder.targets[c].0,
-                    mean_mm: 1e3 * e.clone().sum::<f64>() / n,
-                    max_mm: 1e3 * e.fold(0.0, f64::max),
-                }
-            })
-            .collect();
-        let groups = group_errors(&builder.targets, &out, &err);
-        Ok((out, groups, per))
-    };
-    let (reg_full, held_out_full, keypoint_errors_full) =
-        fit(&cand_full, &keep_full, &train.full, &test.full)?;
-    let (reg_small, held_out_small, keypoint_errors_small) =
-        fit(&cand_small, &keep_small, &train.small, &test.small)?;
+    let (reg_full, held_out_full, keypoint_errors_full) = fit_and_evaluate(
+        &builder.targets,
+        &cand_full,
+        &keep_full,
+        (&train.full, &train.truth),
+        (&test.full, &test.truth),
+        config,
+    )?;
+    let (reg_small, held_out_small, keypoint_errors_small) = fit_and_evaluate(
+        &builder.targets,
+        &cand_small,
+        &keep_small,
+        (&train.small, &train.truth),
+        (&test.small, &test.truth),
+        config,
+    )?;
 
     // Assemble the sets.
     let small_surf = Surface {
