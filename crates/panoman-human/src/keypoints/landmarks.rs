@@ -159,6 +159,25 @@ pub(super) fn face_landmark_positions(
     let mouth_z = 0.5 * (lm[62][2] + lm[66][2]);
     let mouth_y = 0.5 * (lm[62][1] + lm[66][1]);
 
+    nose(h, [mid_x, mouth_y, mouth_z], eye_z, &mut lm)?;
+    jaw(h, [mid_x, mouth_y, mouth_z], eye_z, &mut lm)?;
+    brows(h, (&ru, &lu), &mut lm)?;
+
+    if let Some(k) = lm.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
+        return Err(format!("face landmark {k} could not be placed"));
+    }
+    Ok(lm)
+}
+
+/// The nose landmarks 27–35 (module docs): the midline profile through the mouth centre's
+/// x, `mouth = [x, y, z]` of the mouth centre, `eye_z` the eye corners' mean height; reads
+/// the upper lip's 51, writes `lm[27..36]`.
+fn nose(
+    h: &HeadMesh<'_>,
+    [mid_x, mouth_y, mouth_z]: V3,
+    eye_z: f64,
+    lm: &mut [V3],
+) -> std::result::Result<(), String> {
     // Nose: the midline profile (section x = mid_x).
     let ex = [1.0, 0.0, 0.0];
     let profile = h.section([mid_x, 0.0, 0.0], ex);
@@ -226,11 +245,15 @@ pub(super) fn face_landmark_positions(
         let (x, z) = (0.5 * (lm[a][0] + lm[b][0]), 0.5 * (lm[a][2] + lm[b][2]));
         lm[k] = frontal_hit(h, x, z).ok_or("no skin in front of the nostrils")?;
     }
+    Ok(())
+}
 
+/// The jaw landmarks 0–16 (module docs) about the mouth centre `centre` up to the eye
+/// corners' height `eye_z`.
+fn jaw(h: &HeadMesh<'_>, centre: V3, eye_z: f64, lm: &mut [V3]) -> std::result::Result<(), String> {
     // Jaw: the face's occluding contour seen from the front, traced by planes through the
     // view axis and rays from the mouth centre; 17 points at equal frontal arc length from
     // the eye-corner height on the right (0) over the chin (8) to the left (16).
-    let centre = [mid_x, mouth_y, mouth_z];
     let contour = |theta: f64| -> Option<V3> {
         let r = [theta.sin(), 0.0, -theta.cos()];
         let n = [theta.cos(), 0.0, theta.sin()];
@@ -278,7 +301,17 @@ pub(super) fn face_landmark_positions(
             lm[idx] = p;
         }
     }
+    Ok(())
+}
 
+/// The brow landmarks 17–26 (module docs) above the eyes (`ru`, `lu`: the upper lid arcs of
+/// the right and the left eye; reads the eye corners 36, 39, 42, 45).
+fn brows(
+    h: &HeadMesh<'_>,
+    (ru, lu): (&[V3], &[V3]),
+    lm: &mut [V3],
+) -> std::result::Result<(), String> {
+    let ex = [1.0, 0.0, 0.0];
     // Brows: vertical sections above the eyes; walking up from the upper lid (or the eye
     // corner's height beyond the corners), the sharpest convex bend (the superior orbital
     // rim, where the lid sulcus turns into the forehead) within 4 cm, measured over ±4 mm.
@@ -292,7 +325,7 @@ pub(super) fn face_landmark_positions(
             .collect();
         Ok(up[sharpest_bend(&up, 4e-3, [0.0, 0.0, 1.0], [0.0, -1.0, 0.0])])
     };
-    for (first, o, i, upper) in [(17usize, lm[36], lm[39], &ru), (22, lm[45], lm[42], &lu)] {
+    for (first, o, i, upper) in [(17usize, lm[36], lm[39], ru), (22, lm[45], lm[42], lu)] {
         let w = i[0] - o[0];
         // Outer end a third of an eye width beyond the outer corner, inner end a tenth
         // inside the inner corner.
@@ -316,11 +349,7 @@ pub(super) fn face_landmark_positions(
             lm[idx] = p;
         }
     }
-
-    if let Some(k) = lm.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
-        return Err(format!("face landmark {k} could not be placed"));
-    }
-    Ok(lm)
+    Ok(())
 }
 
 /// The 68 iBUG 300-W landmarks as surface points of the head skin, picked on `rest` (a rest
