@@ -521,13 +521,13 @@ pub struct HeldOutCamera {
     pub keypoint_error: BTreeMap<String, ViewErrors>,
     /// Median over frames of the silhouette IoU by method (`panoman`, `lbs`), where masks
     /// exist.
-    pub silhouette_iou: BTreeMap<String, f64>,
+    pub silhouette_iou: BTreeMap<panoman::Method, f64>,
     /// Mean acceleration (m/s²): `panoman_vertices`, `panoman_keypoints`, `lbs_vertices`,
     /// `lbs_keypoints`, `triangulation_keypoints`.
     pub jitter: BTreeMap<String, f64>,
     /// Per method, per body and foot keypoint name, the median 3D distance (mm) between the
     /// tracked keypoint and its target (the other cameras' smoothed triangulation).
-    pub fit_residual_mm: BTreeMap<String, BTreeMap<String, f64>>,
+    pub fit_residual_mm: BTreeMap<panoman::Method, BTreeMap<String, f64>>,
 }
 
 /// The triangulated keypoints as point tracks (TC-133 0–20) and a tracked sequence's

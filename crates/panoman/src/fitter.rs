@@ -19,16 +19,18 @@ use crate::error::{Error, Result};
 use crate::model::Model;
 use crate::targets::Targets;
 
-/// Which model is fitted.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+/// Which model is fitted. In files its lowercase name (`panoman`, `lbs`); the variants are
+/// declared in the order of their names, so that a map keyed by methods lists them as one
+/// keyed by names would.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
+    /// The LBS rig alone (skeletal IK with pose, phenotype and face units): the baseline.
+    Lbs,
     /// Skeletal IK of the LBS rig (the initializer), then the discrete-shell fit toward the
     /// model's guidance pose `B_P(α, β)` (PanoMan §5).
     #[default]
     PanoMan,
-    /// The LBS rig alone (skeletal IK with pose, phenotype and face units): the baseline.
-    Lbs,
 }
 
 /// Motion data θ: local Euler angles (radians, `R = Rz·Ry·Rx`) by rig bone name; through the

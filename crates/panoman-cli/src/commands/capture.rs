@@ -1109,7 +1109,7 @@ fn evaluate_held_out(
             })
             .collect();
         if !ious.is_empty() {
-            silhouette_iou.insert(name(t.method).to_string(), median_of(&ious));
+            silhouette_iou.insert(t.method, median_of(&ious));
         }
     }
     let mut jitter = BTreeMap::new();
@@ -1135,12 +1135,7 @@ fn evaluate_held_out(
     }
     let fit_residual_mm = tracked
         .iter()
-        .map(|t| {
-            (
-                name(t.method).to_string(),
-                keypoint_residuals(model, &tri, t),
-            )
-        })
+        .map(|t| (t.method, keypoint_residuals(model, &tri, t)))
         .collect();
     Ok(HeldOutCamera {
         fit_residual_mm,
