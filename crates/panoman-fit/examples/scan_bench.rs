@@ -97,10 +97,8 @@ fn main() {
         for i in 0..3 {
             let r = rows[i * rows.len() / 3];
             let truth = to_v3(ds.vertices(r).unwrap());
-            let c = Constraints {
-                keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(&truth)),
-                ..Default::default()
-            };
+            let c =
+                Constraints::keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(&truth)));
             let ikr = solver.ik_fit(&c, &Default::default()).unwrap();
             let h: f64 = ikr.posed.iter().flatten().sum();
             println!(
@@ -143,14 +141,12 @@ fn main() {
                 *c += kpn * rng.gauss();
             }
         }
-        let c = Constraints {
-            keypoints: KeypointsFile::from_all(&kpts),
-            ..Default::default()
-        };
-        let cp = Constraints {
-            points: Some((pts.clone(), None)),
-            ..c.clone()
-        };
+        let c = Constraints::keypoints(KeypointsFile::from_all(&kpts));
+        let mut cp = c.clone();
+        cp.targets.points = Some(panoman_fit::PointCloud {
+            positions: pts.clone(),
+            normals: None,
+        });
         let err = |x: &[V3]| {
             1e3 * x
                 .iter()
@@ -185,7 +181,7 @@ fn main() {
             .model_points(&ikr.state, &Default::default(), &ptargets)
             .unwrap();
         let t_setup = t.elapsed().as_secs_f64();
-        let targets = IkTargets::from_file(&c.keypoints).unwrap();
+        let targets = IkTargets::from_file(&c.targets.keypoints).unwrap();
         let t = Instant::now();
         let warm = solver
             .ik()

@@ -27,6 +27,7 @@
 use crate::error::{FitError, Result};
 use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences_on};
 use crate::quality::{QualityOptions, Verdict};
+use crate::targets::Targets;
 use panoman_human::keypoints::{KeypointGroup, KeypointsFile};
 use panoman_mesh::align::{Rigid, rigid_align};
 use panoman_mesh::geom::{V3, add, dot, matmul, matvec, norm, scale, sub};
@@ -251,17 +252,12 @@ pub struct LevelPair {
     pub weight: f64,
 }
 
-/// The constraint set of one fit.
+/// The constraint set of one fit: its [`Targets`] and what the fit holds fixed, is pulled
+/// toward, or carries from the previous frame.
 #[derive(Clone, Debug, Default)]
 pub struct Constraints {
-    /// Target keypoints (any subset of TC-133, with weights).
-    pub keypoints: KeypointsFile,
-    /// Vertex handles.
-    pub handles: Vec<VertexHandle>,
-    /// Level constraints between vertex pairs (e.g. a planted foot's sole; [`LevelPair`]).
-    pub levels: Vec<LevelPair>,
-    /// A point cloud (metres) and optional unit normals.
-    pub points: Option<(Vec<V3>, Option<Vec<V3>>)>,
+    /// What the fit matches: keypoints, vertex handles, level pairs, a point cloud.
+    pub targets: Targets,
     /// Parameter edits: α (when non-empty) and the β blocks present here are held fixed.
     pub fixed: Option<Params>,
     /// Motion data θ: local Euler angles (radians, `R = Rz·Ry·Rx`) by rig bone name, e.g. from
@@ -273,6 +269,24 @@ pub struct Constraints {
     /// ([`FitOptions::temporal_vertex_weight`], [`FitOptions::temporal_beta`]), its shape α
     /// (kept for the whole sequence) and its placement ([`Placement::Propagated`]).
     pub previous: Option<Previous>,
+}
+
+impl Constraints {
+    /// The constraints of `targets` alone (nothing fixed, no motion data, no previous frame).
+    pub fn of(targets: Targets) -> Constraints {
+        Constraints {
+            targets,
+            ..Default::default()
+        }
+    }
+
+    /// The constraints of keypoints alone.
+    pub fn keypoints(keypoints: KeypointsFile) -> Constraints {
+        Constraints::of(Targets {
+            keypoints,
+            ..Default::default()
+        })
+    }
 }
 
 /// The previous frame of a sequence.
@@ -504,16 +518,20 @@ impl ShellFitter {
     /// Checks the constraint set against the model: keypoints the model defines, finite
     /// values, handle vertices in range, a non-empty point cloud.
     pub fn validate(&self, c: &Constraints) -> Result<()> {
-        c.keypoints
+        c.targets
+            .keypoints
             .validate()
             .map_err(|e| FitError::Invalid(format!("keypoints: {e}")))?;
-        if c.keypoints.points.is_empty() && c.handles.is_empty() && c.points.is_none() {
+        if c.targets.keypoints.points.is_empty()
+            && c.targets.handles.is_empty()
+            && c.targets.points.is_none()
+        {
             return Err(FitError::Invalid(
                 "nothing to fit: no keypoints, handles or points".into(),
             ));
         }
         let names = &self.model.keypoints.names;
-        for &k in c.keypoints.points.keys() {
+        for &k in c.targets.keypoints.points.keys() {
             let name = &panoman_human::keypoints::keypoint_names()[k];
             if !names.iter().any(|n| n == name) {
                 return Err(FitError::Invalid(format!(
@@ -522,7 +540,7 @@ impl ShellFitter {
             }
         }
         let nv = self.model.n_vertices;
-        for (i, h) in c.handles.iter().enumerate() {
+        for (i, h) in c.targets.handles.iter().enumerate() {
             if h.vertex as usize >= nv {
                 return Err(FitError::Invalid(format!(
                     "handle {i}: vertex {} out of range (the model has {nv} vertices)",
@@ -535,7 +553,7 @@ impl ShellFitter {
                 )));
             }
         }
-        for (i, l) in c.levels.iter().enumerate() {
+        for (i, l) in c.targets.levels.iter().enumerate() {
             if l.a as usize >= nv || l.b as usize >= nv || l.a == l.b {
                 return Err(FitError::Invalid(format!(
                     "level {i}: vertices {} and {} out of range or equal (the model has {nv} vertices)",
@@ -553,7 +571,11 @@ impl ShellFitter {
                 )));
             }
         }
-        if let Some((p, n)) = &c.points {
+        if let Some(crate::targets::PointCloud {
+            positions: p,
+            normals: n,
+        }) = &c.targets.points
+        {
             if p.is_empty() {
                 return Err(FitError::Invalid("the point cloud is empty".into()));
             }
@@ -607,7 +629,7 @@ impl ShellFitter {
     fn keypoint_terms(&self, c: &Constraints, only: Option<&[&str]>) -> Vec<(usize, V3, f64)> {
         let all = panoman_human::keypoints::keypoint_names();
         let mut out = Vec::new();
-        for (&k, &p) in &c.keypoints.points {
+        for (&k, &p) in &c.targets.keypoints.points {
             let name = &all[k];
             if let Some(only) = only
                 && !only.contains(&name.as_str())
@@ -615,7 +637,7 @@ impl ShellFitter {
                 continue;
             }
             if let Some(r) = self.model.keypoints.names.iter().position(|n| n == name) {
-                out.push((r, p, c.keypoints.weight(k)));
+                out.push((r, p, c.targets.keypoints.weight(k)));
             }
         }
         out
@@ -642,6 +664,7 @@ impl ShellFitter {
             })
             .collect();
         targets.handles = c
+            .targets
             .handles
             .iter()
             .map(|h| Handle {
@@ -934,7 +957,7 @@ impl ShellFitter {
         params.translation = placement.t;
         self.rest_cache = Some((params.alpha.clone(), rg));
         stages.push(StageReport::timed("params", t));
-        let keypoint_residuals = keypoint_residuals(&self.model, &c.keypoints, &x);
+        let keypoint_residuals = keypoint_residuals(&self.model, &c.targets.keypoints, &x);
         let mut problems = opts.quality.keypoint_problems(&keypoint_residuals);
         problems.extend(opts.quality.shape_problems(&self.model, &params.alpha));
         let report = ShellFitReport {
@@ -970,7 +993,7 @@ impl ShellFitter {
                 && opts.pcg.is_none()
                 && opts.sweeps <= 1
                 && opts.step_iterations > 1
-                && !c.keypoints.points.is_empty()
+                && !c.targets.keypoints.points.is_empty()
         });
         for sweep in 0..opts.sweeps.max(1) {
             if sweep > 0 {
@@ -989,7 +1012,7 @@ impl ShellFitter {
                 its += rep.iterations;
                 acc += rep.accepted;
                 energies.extend_from_slice(&rep.energies);
-                let within = keypoint_residuals(&self.model, &c.keypoints, x)
+                let within = keypoint_residuals(&self.model, &c.targets.keypoints, x)
                     .values()
                     .all(|g| g.mean_mm <= 1e3 * tol);
                 iterations = if within { 0 } else { iterations - 1 };
@@ -1026,7 +1049,11 @@ impl ShellFitter {
     ) -> Result<Vec<StageReport>> {
         let (rg, c, opts) = (pass.rg, pass.c, pass.opts);
         let mut stages = Vec::new();
-        let Some((pts, nrm)) = &c.points else {
+        let Some(crate::targets::PointCloud {
+            positions: pts,
+            normals: nrm,
+        }) = &c.targets.points
+        else {
             return Ok(stages);
         };
         let l2 = self.mean_edge * self.mean_edge;

@@ -153,7 +153,7 @@ impl FrameSolver {
             || fitter.prefetch_correction(c, opts),
         );
         let (mut r, attempts) = ik_out?;
-        if c.points.is_some() {
+        if c.targets.points.is_some() {
             let icp = IkIcpOptions {
                 // A warm-started frame keeps its phenotype basin.
                 phenotype_starts: if warm.is_some() {
@@ -167,7 +167,7 @@ impl FrameSolver {
         }
         let init = init_of(&r, ik, rig.generator.bone_names());
         let after_skeletal;
-        let opts = if c.points.is_some() {
+        let opts = if c.targets.points.is_some() {
             after_skeletal = FitOptions {
                 icp_passes: opts.icp_passes_after_skeletal,
                 ..opts.clone()
@@ -212,7 +212,7 @@ impl FrameSolver {
             ..ik_cfg.clone()
         };
         let (mut r, attempts) = robust_ik(self.model(), &self.ik, c, &cfg, q)?;
-        if c.points.is_some() {
+        if c.targets.points.is_some() {
             r = self.ik_icp(c, ik_cfg, &r, &IkIcpOptions::default())?.0;
         }
         Ok((r, attempts))

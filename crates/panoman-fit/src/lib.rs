@@ -14,6 +14,7 @@ pub mod ik;
 pub mod pipeline;
 pub mod quality;
 pub mod shape_calibration;
+pub mod targets;
 
 pub use error::{FitError, Result};
 pub use fit::{
@@ -25,4 +26,5 @@ pub use pipeline::{IkIcpOptions, LbsRig, ik_config_for_noise, ik_fit, ik_icp, in
 pub use shape_calibration::{
     LENGTH_KNOBS, ShapeCalibration, ShapeCalibrationOptions, ShapeKnob, calibrate_shape,
 };
+pub use targets::{PointCloud, Targets};
 pub mod twist;

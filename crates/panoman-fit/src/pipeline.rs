@@ -120,12 +120,12 @@ impl LbsRig {
 /// Skeletal IK of the rig to the constraint set's keypoints (the initializer, and the LBS
 /// baseline on its own).
 pub fn ik_fit(ik: &IkSolver, c: &Constraints, cfg: &IkConfig) -> Result<IkResult> {
-    if c.keypoints.points.is_empty() {
+    if c.targets.keypoints.points.is_empty() {
         return Err(FitError::Invalid(
             "the initializer needs keypoints (none given)".into(),
         ));
     }
-    let targets = IkTargets::from_file(&c.keypoints)?;
+    let targets = IkTargets::from_file(&c.targets.keypoints)?;
     let r = ik.solve(&targets, cfg)?;
     let (r, ranges) = range_continuation(ik, &targets, cfg, r)?;
     let r = phenotype_polish(ik, &targets, cfg, ranges, r)?;
@@ -151,17 +151,17 @@ fn handle_pass(
     cfg: &IkConfig,
     r: IkResult,
 ) -> Result<IkResult> {
-    if c.handles.is_empty() && c.levels.is_empty() {
+    if c.targets.handles.is_empty() && c.targets.levels.is_empty() {
         return Ok(r);
     }
-    let handles = c.handles.iter().map(|h| PointTarget {
+    let handles = c.targets.handles.iter().map(|h| PointTarget {
         rows: vec![(h.vertex, 1.0)],
         position: h.position,
         weight: h.weight,
         normal: None,
     });
     // A level pair: the point x_a − x_b against the plane through d·n̂ with normal n̂.
-    let levels = c.levels.iter().map(|l| {
+    let levels = c.targets.levels.iter().map(|l| {
         let n = scale(l.up, 1.0 / norm(l.up));
         PointTarget {
             rows: vec![(l.a, 1.0), (l.b, -1.0)],
@@ -467,15 +467,19 @@ pub fn ik_icp(
     start: &IkResult,
     opts: &IkIcpOptions,
 ) -> Result<(IkResult, Vec<MatchStats>)> {
-    let Some((pts, nrm)) = &c.points else {
+    let Some(crate::targets::PointCloud {
+        positions: pts,
+        normals: nrm,
+    }) = &c.targets.points
+    else {
         return Ok((start.clone(), Vec::new()));
     };
-    if c.keypoints.points.is_empty() {
+    if c.targets.keypoints.points.is_empty() {
         return Err(FitError::Invalid(
             "the skeletal ICP needs keypoints (none given)".into(),
         ));
     }
-    let targets = IkTargets::from_file(&c.keypoints)?;
+    let targets = IkTargets::from_file(&c.targets.keypoints)?;
     if !(opts.point_sigma.is_finite() && opts.point_sigma > 0.0) {
         return Err(FitError::Invalid(format!(
             "ICP point sigma {} must be positive",

@@ -304,7 +304,10 @@ pub fn calibrate_shape(
             "shape calibration: no frames given".into(),
         ));
     }
-    if let Some(i) = frames.iter().position(|c| c.keypoints.points.is_empty()) {
+    if let Some(i) = frames
+        .iter()
+        .position(|c| c.targets.keypoints.points.is_empty())
+    {
         return Err(FitError::Invalid(format!(
             "shape calibration: frame {i} has no keypoints"
         )));
@@ -448,19 +451,24 @@ fn segments(frames: &[Constraints]) -> Vec<(End, End)> {
         return out;
     }
     let vertices: Vec<u32> = frames[0]
+        .targets
         .handles
         .iter()
         .map(|h| h.vertex)
         .filter(|v| {
             frames
                 .iter()
-                .all(|c| c.handles.iter().any(|h| h.vertex == *v))
+                .all(|c| c.targets.handles.iter().any(|h| h.vertex == *v))
         })
         .collect();
     let body: Vec<End> = panoman_human::keypoints::BODY_NAMES
         .iter()
         .filter_map(|n| keypoint_index(n))
-        .filter(|i| frames.iter().all(|c| c.keypoints.points.contains_key(i)))
+        .filter(|i| {
+            frames
+                .iter()
+                .all(|c| c.targets.keypoints.points.contains_key(i))
+        })
         .map(End::Keypoint)
         .collect();
     for (i, &v) in vertices.iter().enumerate() {
@@ -488,11 +496,13 @@ fn segments(frames: &[Constraints]) -> Vec<(End, End)> {
 fn given(c: &Constraints, e: End) -> Option<(V3, f64)> {
     match e {
         End::Keypoint(i) => c
+            .targets
             .keypoints
             .points
             .get(&i)
-            .map(|p| (*p, c.keypoints.weight(i))),
+            .map(|p| (*p, c.targets.keypoints.weight(i))),
         End::Vertex(v) => c
+            .targets
             .handles
             .iter()
             .find(|h| h.vertex == v)
@@ -535,15 +545,15 @@ fn frame_residuals(
 fn frame_offsets(ik: &IkSolver, c: &Constraints, mesh: &[V3]) -> Result<Vec<(V3, f64)>> {
     let k = ik.keypoints_on(mesh)?;
     let mut out = Vec::new();
-    for (&i, &p) in &c.keypoints.points {
-        let w = c.keypoints.weights.get(&i).copied().unwrap_or(1.0);
+    for (&i, &p) in &c.targets.keypoints.points {
+        let w = c.targets.keypoints.weights.get(&i).copied().unwrap_or(1.0);
         if let Some(Some(m)) = k.get(i)
             && w > 0.0
         {
             out.push((sub(*m, p), w));
         }
     }
-    for h in &c.handles {
+    for h in &c.targets.handles {
         let Some(&m) = mesh.get(h.vertex as usize) else {
             return Err(FitError::Invalid(format!(
                 "shape calibration: handle vertex {} is not on the mesh ({} vertices)",

@@ -617,10 +617,7 @@ fn a_forearm_twist_beyond_the_sampler_is_reached_by_the_continuation() {
         hand > panoman_fit::pipeline::WIDE_RETRY_MM,
         "bounded solve: left hand {hand} mm"
     );
-    let c = panoman_fit::Constraints {
-        keypoints: KeypointsFile::from_all(&kp),
-        ..Default::default()
-    };
+    let c = panoman_fit::Constraints::keypoints(KeypointsFile::from_all(&kp));
     let r = panoman_fit::ik_fit(s, &c, &config).unwrap();
     let twist = r.state.angles[bone("lowerarm02.L")][1].to_degrees();
     eprintln!(
@@ -659,10 +656,9 @@ fn straight_limbs_are_reached_cold_and_kept_warm() {
     let body = |r: &panoman_fit::ik::IkResult| r.group_mean(KeypointGroup::Body).unwrap();
     let previous = panoman_fit::ik_fit(
         s,
-        &panoman_fit::Constraints {
-            keypoints: KeypointsFile::from_all(&fx().small_set.evaluate(&small_mesh(&bent))),
-            ..Default::default()
-        },
+        &panoman_fit::Constraints::keypoints(KeypointsFile::from_all(
+            &fx().small_set.evaluate(&small_mesh(&bent)),
+        )),
         &IkConfig::default(),
     )
     .unwrap();
@@ -673,10 +669,7 @@ fn straight_limbs_are_reached_cold_and_kept_warm() {
         "bounded solve: body {} mm",
         body(&bounded)
     );
-    let c = panoman_fit::Constraints {
-        keypoints: KeypointsFile::from_all(&kp),
-        ..Default::default()
-    };
+    let c = panoman_fit::Constraints::keypoints(KeypointsFile::from_all(&kp));
     let r = panoman_fit::ik_fit(s, &c, &IkConfig::default()).unwrap();
     let elbow = r.state.angles[bone("lowerarm01.L")][0].to_degrees();
     let knee = r.state.angles[bone("lowerleg01.R")][0].to_degrees();
@@ -774,10 +767,7 @@ fn foot_keypoints_set_the_foot_flexion() {
     let mesh = small_mesh(&truth);
     let all = KeypointsFile::from_all(&fx().small_set.evaluate(&mesh));
     let fit = |k: KeypointsFile| {
-        let c = panoman_fit::Constraints {
-            keypoints: k,
-            ..Default::default()
-        };
+        let c = panoman_fit::Constraints::keypoints(k);
         panoman_fit::ik_fit(s, &c, &IkConfig::default()).unwrap()
     };
     let flexion_err = |r: &panoman_fit::ik::IkResult| flexion_error_deg(&truth, r);
@@ -813,21 +803,16 @@ fn foot_handles_place_the_feet() {
     let mesh = small_mesh(&truth);
     let feet = rest_foot_points();
     let keypoints = without_feet(KeypointsFile::from_all(&fx().small_set.evaluate(&mesh)));
-    let only = panoman_fit::Constraints {
-        keypoints: keypoints.clone(),
-        ..Default::default()
-    };
-    let with = panoman_fit::Constraints {
-        handles: feet
-            .iter()
-            .map(|&v| VertexHandle {
-                vertex: v as u32,
-                position: mesh[v],
-                weight: 1.0,
-            })
-            .collect(),
-        ..only.clone()
-    };
+    let only = panoman_fit::Constraints::keypoints(keypoints.clone());
+    let mut with = only.clone();
+    with.targets.handles = feet
+        .iter()
+        .map(|&v| VertexHandle {
+            vertex: v as u32,
+            position: mesh[v],
+            weight: 1.0,
+        })
+        .collect();
     let foot_err = |r: &panoman_fit::ik::IkResult| {
         ["foot.L", "foot.R"]
             .iter()
@@ -894,14 +879,9 @@ fn level_pairs_set_the_foot_flexion() {
         }
     }
     let keypoints = without_feet(KeypointsFile::from_all(&fx().small_set.evaluate(&mesh)));
-    let only = panoman_fit::Constraints {
-        keypoints,
-        ..Default::default()
-    };
-    let with = panoman_fit::Constraints {
-        levels: levels.clone(),
-        ..only.clone()
-    };
+    let only = panoman_fit::Constraints::keypoints(keypoints);
+    let mut with = only.clone();
+    with.targets.levels = levels.clone();
     let flexion_err = |r: &panoman_fit::ik::IkResult| flexion_error_deg(&truth, r);
     let level_err = |v: &[[f64; 3]]| {
         levels
@@ -952,10 +932,9 @@ fn the_phenotype_polish_leaves_wrong_phenotype_cells() {
     for i in 0..n {
         let truth = person(i);
         let mesh = small_mesh(&truth);
-        let c = panoman_fit::Constraints {
-            keypoints: KeypointsFile::from_all(&fx().small_set.evaluate(&mesh)),
-            ..Default::default()
-        };
+        let c = panoman_fit::Constraints::keypoints(KeypointsFile::from_all(
+            &fx().small_set.evaluate(&mesh),
+        ));
         let off = IkConfig {
             phenotype_polish: false,
             ..IkConfig::default()

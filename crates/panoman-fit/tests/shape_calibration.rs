@@ -112,7 +112,7 @@ fn frames_with(n: u64, with_handles: bool) -> Vec<Constraints> {
                 pose,
             };
             let mesh = f.map.map(OutputTopology::Small, &id.pose(&p.pose).vertices);
-            Constraints {
+            Constraints::of(panoman_fit::Targets {
                 keypoints: KeypointsFile::from_all(&f.set.evaluate(&mesh)),
                 handles: if with_handles {
                     feet.iter()
@@ -125,8 +125,8 @@ fn frames_with(n: u64, with_handles: bool) -> Vec<Constraints> {
                 } else {
                     Vec::new()
                 },
-                ..Constraints::default()
-            }
+                ..Default::default()
+            })
         })
         .collect()
 }
@@ -214,7 +214,10 @@ fn segment_error_mm(frames: &[Constraints], solved: &[panoman_fit::ik::IkResult]
         for (a, b) in SEGMENTS {
             let (ia, ib) = (keypoint_index(a).unwrap(), keypoint_index(b).unwrap());
             let model = dist(k[ia].unwrap(), k[ib].unwrap());
-            let given = dist(c.keypoints.points[&ia], c.keypoints.points[&ib]);
+            let given = dist(
+                c.targets.keypoints.points[&ia],
+                c.targets.keypoints.points[&ib],
+            );
             e.push(1e3 * (model - given).abs());
         }
     }
@@ -253,7 +256,7 @@ fn bad_input_is_refused() {
     let e = calibrate_shape(&f.ik, &[], &base, &cfg, &opts).unwrap_err();
     assert!(e.to_string().contains("no frames"), "{e}");
     let mut fr = frames(2);
-    fr[1].keypoints = KeypointsFile::default();
+    fr[1].targets.keypoints = KeypointsFile::default();
     let e = calibrate_shape(&f.ik, &fr, &base, &cfg, &opts).unwrap_err();
     assert!(e.to_string().contains("frame 1 has no keypoints"), "{e}");
     let mut wild = base.clone();

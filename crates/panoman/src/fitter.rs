@@ -300,13 +300,7 @@ impl Fitter {
             ));
         }
         let c = Constraints {
-            keypoints: t.keypoints.clone(),
-            handles: t.handles.clone(),
-            levels: t.levels.clone(),
-            points: t
-                .points
-                .as_ref()
-                .map(|p| (p.positions.clone(), p.normals.clone())),
+            targets: t.clone(),
             fixed: req.fixed.clone(),
             motion: req.motion.clone(),
             previous: None,
@@ -342,7 +336,8 @@ impl Fitter {
         attempts: Vec<IkAttempt>,
         q: &QualityOptions,
     ) -> FitOutput {
-        let keypoint_residuals = keypoint_residuals(self.model.inner(), &c.keypoints, &r.posed);
+        let keypoint_residuals =
+            keypoint_residuals(self.model.inner(), &c.targets.keypoints, &r.posed);
         // The IK is the result: its check (the initializer's thresholds, after a skeletal
         // ICP if any) decides.
         let mut problems = panoman_fit::pipeline::ik_problems(self.model.inner(), &r, q);

@@ -281,7 +281,7 @@ pub fn run(a: FitArgs) -> Result<()> {
         let cloud = read_points(p)?;
         cloud
             .check_against(&targets.keypoints)
-            .map_err(|e| e.in_file(p))?;
+            .map_err(|e| panoman::Error::from(e).in_file(p))?;
         targets.points = Some(cloud);
     }
     let mut fitter = Fitter::with_assets(&model, a.assets.as_deref())?;

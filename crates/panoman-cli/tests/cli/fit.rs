@@ -4,7 +4,7 @@
 //! the binary.
 
 use panoman_fit::fit::{FitOptions, keypoint_residuals};
-use panoman_fit::{Constraints, FitError, FrameSolver, Init, LbsRig, Tracking};
+use panoman_fit::{Constraints, FitError, FrameSolver, Init, LbsRig, PointCloud, Tracking};
 use panoman_human::keypoints::{KeypointGroup, KeypointsFile, keypoint_index};
 use panoman_mesh::geom::{V3, norm, sub};
 use panoman_model::model::PanoManModel;
@@ -69,10 +69,7 @@ fn held_out_people_from_exact_keypoints() {
     let (mut e_pm, mut e_lbs) = (0.0, 0.0);
     for (truth, _) in &cases {
         let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
-        let c = Constraints {
-            keypoints: kp.clone(),
-            ..Default::default()
-        };
+        let c = Constraints::keypoints(kp.clone());
         let (ikr, fit) = cold_fit(&mut solver, &c).unwrap();
         let (ep, el) = (
             mean_error(&fit.vertices, truth),
@@ -116,10 +113,7 @@ fn cold_keypoint_stage_stops_after_one_step_only_within_its_tolerance() {
     let (model, mut solver) = model_and_solver(model_path);
     let (truth, _) = &held_out(data, 1)[0];
     let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
-    let c = Constraints {
-        keypoints: kp.clone(),
-        ..Default::default()
-    };
+    let c = Constraints::keypoints(kp.clone());
     let mut run = |tol: Option<f64>| {
         let opts = FitOptions {
             one_step_tolerance: tol,
@@ -186,10 +180,7 @@ fn sequence_follows_a_rigid_motion_and_propagates_the_placement() {
     let mut seq = Tracking::default();
     let mut fits = Vec::new();
     for x in [&truth, &moved, &truth] {
-        let c = Constraints {
-            keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(x)),
-            ..Default::default()
-        };
+        let c = Constraints::keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(x)));
         fits.push(seq.fit_next(&mut solver, &c).unwrap().1);
     }
     let (f0, f1, f2) = (&fits[0], &fits[1], &fits[2]);
@@ -242,10 +233,7 @@ fn motion_data_constrains_the_body_coefficients() {
     let (_, data, model_path) = trained();
     let (model, mut solver) = model_and_solver(model_path);
     let (truth, _) = held_out(data, 1).remove(0);
-    let c = Constraints {
-        keypoints: KeypointsFile::from_all(&model.keypoints.evaluate(&truth)),
-        ..Default::default()
-    };
+    let c = Constraints::keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(&truth)));
     let ikr = solver.ik_fit(&c, &Default::default()).unwrap();
     let init = solver.init_of(&ikr);
     let theta = init.theta.clone().unwrap();
@@ -285,7 +273,7 @@ fn motion_data_constrains_the_body_coefficients() {
     assert!(d_free > 1e-3, "{d_free}");
     assert!(d_held < 1e-5 * d_free.max(1.0), "{d_held} vs {d_free}");
     // The fit still meets the keypoints (the shell's V is free).
-    let res = keypoint_residuals(&model, &c.keypoints, &held.vertices);
+    let res = keypoint_residuals(&model, &c.targets.keypoints, &held.vertices);
     assert!(res[&KeypointGroup::Body].mean_mm < 10.0, "{res:?}");
     let mut bad = theta;
     bad.insert("upperarm01.L".into(), [f64::NAN, 0.0, 0.0]);
@@ -347,10 +335,7 @@ fn point_cloud_with_missing_part_and_noise_helps() {
     // this person within 4.4 mm, the near-exact case described above.
     let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth))
         .without_group(panoman_human::keypoints::KeypointGroup::Feet);
-    let c = Constraints {
-        keypoints: kp,
-        ..Default::default()
-    };
+    let c = Constraints::keypoints(kp);
     let unpolished = panoman_fit::ik::IkConfig {
         phenotype_polish: false,
         ..Default::default()
@@ -366,10 +351,11 @@ fn point_cloud_with_missing_part_and_noise_helps() {
         .shell_mut()
         .fit(&c, &init, &FitOptions::default())
         .unwrap();
-    let with_points = Constraints {
-        points: Some((points, None)),
-        ..c.clone()
-    };
+    let mut with_points = c.clone();
+    with_points.targets.points = Some(PointCloud {
+        positions: points,
+        normals: None,
+    });
     let fit = solver
         .shell_mut()
         .fit(&with_points, &init, &FitOptions::default())
@@ -403,10 +389,7 @@ fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
     // The left wrist 1 m away from the elbow: unreachable.
     let w = keypoint_index("l_wrist").unwrap();
     kp.points.get_mut(&w).unwrap()[0] += 1.0;
-    let c = Constraints {
-        keypoints: kp,
-        ..Default::default()
-    };
+    let c = Constraints::keypoints(kp);
     let (_, fit) = cold_fit(&mut solver, &c).expect("an unreachable target is not an error");
     assert!(fit.vertices.iter().flatten().all(|x| x.is_finite()));
     assert!(fit.report.keypoint_residuals[&KeypointGroup::Body].max_mm > 100.0);
@@ -417,10 +400,8 @@ fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
         theta: None,
         guide: None,
     };
-    let empty = Constraints {
-        points: Some((Vec::new(), None)),
-        ..c.clone()
-    };
+    let mut empty = c.clone();
+    empty.targets.points = Some(PointCloud::default());
     let e = solver
         .shell_mut()
         .fit(&empty, &init, &FitOptions::default())
@@ -707,10 +688,7 @@ fn quality_check_retries_and_flags_an_impossible_keypoint() {
     let (model, mut solver) = model_and_solver(model_path);
     let (truth, _) = &held_out(data, 1)[0];
     let mut kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
-    let good = Constraints {
-        keypoints: kp.clone(),
-        ..Default::default()
-    };
+    let good = Constraints::keypoints(kp.clone());
     let (_, fit) = cold_fit(&mut solver, &good).unwrap();
     let v = &fit.report.verdict;
     assert!(v.converged, "{:?}", v.reason);
@@ -722,10 +700,7 @@ fn quality_check_retries_and_flags_an_impossible_keypoint() {
 
     let w = keypoint_index("l_wrist").unwrap();
     kp.points.get_mut(&w).unwrap()[1] += 0.5;
-    let bad = Constraints {
-        keypoints: kp,
-        ..Default::default()
-    };
+    let bad = Constraints::keypoints(kp);
     let (_, fit) = cold_fit(&mut solver, &bad).unwrap();
     let v = &fit.report.verdict;
     assert!(!v.converged);

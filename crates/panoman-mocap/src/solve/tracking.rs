@@ -264,7 +264,10 @@ impl MarkerSolver {
             FitOptions::default()
         };
         let c = Constraints {
-            handles,
+            targets: panoman_fit::Targets {
+                handles,
+                ..Default::default()
+            },
             fixed: Some(Params {
                 alpha: cal.alpha.clone(),
                 ..Default::default()

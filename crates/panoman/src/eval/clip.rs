@@ -59,10 +59,9 @@ pub(crate) fn run(
     let mut map_frame = None;
     let mut stats = FitStats::default();
     for (f, truth) in truths.iter().enumerate() {
-        let c = Constraints {
-            keypoints: KeypointsFile::from_all(&b.model.inner().keypoints.evaluate(truth)),
-            ..Default::default()
-        };
+        let c = Constraints::keypoints(KeypointsFile::from_all(
+            &b.model.inner().keypoints.evaluate(truth),
+        ));
         let (ikr, fit) = seq.fit_next(&mut b.solver, &c)?;
         // The LBS baseline's frames use the PanoMan sequence's IK settings.
         let lbs = ik_fit(

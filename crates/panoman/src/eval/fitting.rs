@@ -102,10 +102,7 @@ pub(crate) fn run(
             } else {
                 kp.clone()
             };
-            let c = Constraints {
-                keypoints: KeypointsFile::from_all(&pts),
-                ..Default::default()
-            };
+            let c = Constraints::keypoints(KeypointsFile::from_all(&pts));
             let ikc = if is_noisy {
                 ik_config_for_noise(0.005)
             } else {
@@ -138,7 +135,7 @@ pub(crate) fn run(
             }
             exact.push(errors);
             for (m, x) in [("panoman", &fit.vertices), ("lbs", &ikr.posed)] {
-                for (g, r) in keypoint_residuals(b.model.inner(), &c.keypoints, x) {
+                for (g, r) in keypoint_residuals(b.model.inner(), &c.targets.keypoints, x) {
                     let e = kp_res.entry((m, g)).or_insert((0.0, 0.0f64, 0usize));
                     e.0 += r.mean_mm;
                     e.1 = e.1.max(r.max_mm);

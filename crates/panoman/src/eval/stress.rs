@@ -460,7 +460,7 @@ fn twist_measures(
 
 /// Mean keypoint residual (mm) over all given keypoints of `x`.
 fn residual_mm(b: &Bench, c: &Constraints, x: &[V3]) -> f64 {
-    let r = keypoint_residuals(b.model.inner(), &c.keypoints, x);
+    let r = keypoint_residuals(b.model.inner(), &c.targets.keypoints, x);
     r.values().map(|g| g.mean_mm * g.n as f64).sum::<f64>()
         / r.values().map(|g| g.n).sum::<usize>().max(1) as f64
 }
@@ -488,10 +488,7 @@ fn run_case(
     if cfg.stress_without_feet {
         keypoints = keypoints.without_group(KeypointGroup::Feet);
     }
-    let c = Constraints {
-        keypoints,
-        ..Default::default()
-    };
+    let c = Constraints::keypoints(keypoints);
     let t = std::time::Instant::now();
     let (ikr, fit) = b.solver.fit(&c, &b.ikc, &b.opts, None)?;
     let seconds = t.elapsed().as_secs_f64();

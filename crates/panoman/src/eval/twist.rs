@@ -186,10 +186,9 @@ fn twist_row(
     pose.euler_deg[s.bone][1] = ang;
     let posed = p.id.pose(&pose);
     let truth = b.rig().map.map(b.rig().topology, &posed.vertices);
-    let c = Constraints {
-        keypoints: KeypointsFile::from_all(&b.model.inner().keypoints.evaluate(&truth)),
-        ..Default::default()
-    };
+    let c = Constraints::keypoints(KeypointsFile::from_all(
+        &b.model.inner().keypoints.evaluate(&truth),
+    ));
     // The identity is known here (the study is about the twist): the IK keeps the true
     // phenotype and fits the pose only, for both the baseline and the initializer.
     let ik_known = IkConfig {
@@ -201,7 +200,7 @@ fn twist_row(
     let fit = b.solver.fit_from_ik(&c, &ikr, &b.opts)?;
     let pm = b.model.inner();
     let kres = |x: &[V3]| {
-        let r = keypoint_residuals(pm, &c.keypoints, x);
+        let r = keypoint_residuals(pm, &c.targets.keypoints, x);
         r.values().map(|g| g.mean_mm * g.n as f64).sum::<f64>()
             / r.values().map(|g| g.n).sum::<usize>().max(1) as f64
     };
