@@ -27,6 +27,7 @@
 
 use anyhow::{Context, Result};
 use panoman_mesh::TriMesh;
+use panoman_mesh::geom::dot;
 use panoman_mesh::measure::vertex_normals;
 use std::path::Path;
 use std::str::FromStr;
@@ -623,11 +624,6 @@ impl Framebuffer {
             data,
         }
     }
-}
-
-#[inline]
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 #[inline]

@@ -418,7 +418,7 @@ pub fn synthesize(
         HumanError::io(&path, e)
     })?;
 
-    write_atomic(&out_dir.join(JSON_FILE), text.as_bytes())?;
+    panoman_mesh::io::write_bytes_atomically(&out_dir.join(JSON_FILE), text.as_bytes())?;
     Ok(SynthSummary {
         counts,
         n_rows: n,
@@ -606,10 +606,6 @@ fn temp_path(path: &Path) -> PathBuf {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
-}
-
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    Ok(panoman_mesh::io::write_bytes_atomically(path, bytes)?)
 }
 
 // ---------------------------------------------------------------------------------------------

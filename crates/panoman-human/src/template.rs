@@ -14,6 +14,7 @@
 use std::str::FromStr;
 
 use panoman_mesh::TriMesh;
+use panoman_mesh::geom::{dot, sub};
 use panoman_mesh::topology::Topology;
 use rayon::prelude::*;
 
@@ -382,16 +383,6 @@ pub fn template_mesh(assets: &AssetDir, kind: TopologyKind) -> Result<TriMesh> {
 // Closest points on a triangle mesh.
 
 type V3 = [f64; 3];
-
-#[inline]
-fn sub(a: V3, b: V3) -> V3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-#[inline]
-fn dot(a: V3, b: V3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
 
 #[inline]
 fn dist2(a: V3, b: V3) -> f64 {

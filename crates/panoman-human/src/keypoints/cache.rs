@@ -186,7 +186,7 @@ pub fn load_or_build(
     let text = serde_json::to_string(&defs.to_cache_json(template))
         .map_err(|e| HumanError::format(&path, e.to_string()))?;
     if std::fs::create_dir_all(path.parent().unwrap_or(Path::new("."))).is_ok() {
-        let _ = write_atomic(&path, &text);
+        let _ = panoman_mesh::io::write_bytes_atomically(&path, text.as_bytes());
     }
     Ok(defs)
 }

@@ -688,7 +688,10 @@ impl KeypointsFile {
     /// I/O errors or non-finite values, naming the file.
     pub fn write(&self, path: &Path) -> Result<()> {
         let text = self.to_json().map_err(|e| e.in_file(path))?;
-        write_atomic(path, &text)
+        Ok(panoman_mesh::io::write_bytes_atomically(
+            path,
+            text.as_bytes(),
+        )?)
     }
 }
 
@@ -701,12 +704,4 @@ fn fmt_f64(x: f64) -> String {
     } else {
         format!("{s}.0")
     }
-}
-
-/// Writes `text` to `path` atomically (the project's atomic writer).
-fn write_atomic(path: &Path, text: &str) -> Result<()> {
-    Ok(panoman_mesh::io::write_bytes_atomically(
-        path,
-        text.as_bytes(),
-    )?)
 }
