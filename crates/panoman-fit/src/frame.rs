@@ -11,7 +11,7 @@ use crate::fit::{
 use crate::icp::MatchStats;
 use crate::ik::{IkConfig, IkResult, IkSolver, IkState};
 use crate::pipeline::{IkIcpOptions, LbsRig, ik_fit, ik_icp, init_of, robust_ik};
-use crate::quality::{IkAttempt, QualityOptions, Verdict};
+use crate::quality::{IkAttempt, Problem, QualityOptions, Verdict};
 use panoman_human::assets::AssetDir;
 use panoman_model::model::{Evaluator, PanoManModel};
 use std::sync::Arc;
@@ -178,17 +178,17 @@ impl FrameSolver {
         };
         let mut fit = fitter.fit(c, &init, opts)?;
         let chosen = attempts.iter().find(|a| a.chosen);
-        let mut problems: Vec<String> = chosen
+        let mut problems: Vec<Problem> = chosen
             .map(|a| {
                 a.problems
                     .iter()
-                    .map(|p| format!("initializer: {p}"))
+                    .map(|p| Problem::Initializer(Box::new(p.clone())))
                     .collect()
             })
             .unwrap_or_default();
-        problems.extend(fit.report.verdict.reason.take());
+        problems.append(&mut fit.report.verdict.problems);
         if !problems.is_empty() && attempts.len() > 1 {
-            problems.push(format!("{} initializer starts tried", attempts.len()));
+            problems.push(Problem::StartsTried(attempts.len()));
         }
         fit.report.verdict = Verdict::from_problems(problems, &opts.quality, attempts);
         Ok((r, fit))

@@ -9,7 +9,7 @@ use crate::error::{FitError, Result};
 use crate::fit::{Constraints, Init};
 use crate::icp::{IcpOptions, MatchStats, VertexFaces, correspondences_on};
 use crate::ik::{IkConfig, IkResult, IkSolver, IkStageReport, IkState, IkTargets, PointTarget};
-use crate::quality::{IkAttempt, QualityOptions, ik_group_residuals, phenotype_at_bounds};
+use crate::quality::{IkAttempt, Problem, QualityOptions, ik_group_residuals, phenotype_at_bounds};
 use panoman_human::assets::AssetDir;
 use panoman_human::generator::{Generator, GeneratorOptions};
 use panoman_human::keypoints::{KeypointSet, load_or_build};
@@ -602,7 +602,7 @@ pub fn ik_icp(
 /// group (against the initializer's thresholds, [`QualityOptions::for_initializer`]) and the
 /// plausibility of its shape (α = the PCA projection of its rest mesh, see
 /// [`crate::quality`]); with a failure, the phenotype values on their bounds are noted.
-pub fn ik_problems(model: &PanoManModel, r: &IkResult, q: &QualityOptions) -> Vec<String> {
+pub fn ik_problems(model: &PanoManModel, r: &IkResult, q: &QualityOptions) -> Vec<Problem> {
     let mut p = q
         .for_initializer()
         .keypoint_problems(&ik_group_residuals(r));
@@ -612,7 +612,7 @@ pub fn ik_problems(model: &PanoManModel, r: &IkResult, q: &QualityOptions) -> Ve
     }
     let bounds = phenotype_at_bounds(r);
     if !p.is_empty() && !bounds.is_empty() {
-        p.push(format!("phenotype on its bounds: {}", bounds.join(", ")));
+        p.push(Problem::PhenotypeAtBounds(bounds));
     }
     p
 }

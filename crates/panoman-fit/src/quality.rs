@@ -106,8 +106,8 @@ impl QualityOptions {
     }
 
     /// The problems of a set of group residuals (empty when every group passes), e.g.
-    /// `body mean 31.2 mm > 10.0 mm`.
-    pub fn keypoint_problems(&self, res: &BTreeMap<KeypointGroup, GroupResidual>) -> Vec<String> {
+    /// `body keypoint mean 31.2 mm > 10.0 mm`.
+    pub fn keypoint_problems(&self, res: &BTreeMap<KeypointGroup, GroupResidual>) -> Vec<Problem> {
         let t = self.thresholds_mm();
         let mut out = Vec::new();
         for (g, r) in res {
@@ -115,15 +115,17 @@ impl QualityOptions {
                 continue;
             }
             if r.mean_mm.is_nan() || r.mean_mm > t.mean_mm {
-                out.push(format!(
-                    "{g} keypoint mean {:.1} mm > {:.1} mm",
-                    r.mean_mm, t.mean_mm
-                ));
+                out.push(Problem::KeypointMean {
+                    group: *g,
+                    mean_mm: r.mean_mm,
+                    threshold_mm: t.mean_mm,
+                });
             } else if r.max_mm.is_nan() || r.max_mm > t.max_mm {
-                out.push(format!(
-                    "{g} keypoint max {:.1} mm > {:.1} mm",
-                    r.max_mm, t.max_mm
-                ));
+                out.push(Problem::KeypointMax {
+                    group: *g,
+                    max_mm: r.max_mm,
+                    threshold_mm: t.max_mm,
+                });
             }
         }
         out
@@ -131,16 +133,93 @@ impl QualityOptions {
 
     /// The problems of shape coefficients α: a leading component's `|α_i|/σ_i` above
     /// [`QualityOptions::alpha_sigma`].
-    pub fn shape_problems(&self, model: &PanoManModel, alpha: &[f64]) -> Vec<String> {
+    pub fn shape_problems(&self, model: &PanoManModel, alpha: &[f64]) -> Vec<Problem> {
         let z = alpha_leading_sigma(model, alpha);
         if z.is_nan() || z > self.alpha_sigma {
-            vec![format!(
-                "shape outside the PCA prior (|α|/σ {z:.1} > {:.1} on a leading component)",
-                self.alpha_sigma
-            )]
+            vec![Problem::Shape {
+                sigmas: z,
+                threshold: self.alpha_sigma,
+            }]
         } else {
             Vec::new()
         }
+    }
+}
+
+/// One failed quality check. Written (reports, JSON) as one line, e.g. `body keypoint mean
+/// 31.2 mm > 10.0 mm`; a verdict's `reason` joins its problems with `; `.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Problem {
+    /// A group's mean keypoint residual is above the threshold (mm).
+    KeypointMean {
+        /// The group.
+        group: KeypointGroup,
+        /// Its mean residual (mm; NaN fails).
+        mean_mm: f64,
+        /// The threshold (mm).
+        threshold_mm: f64,
+    },
+    /// A group's largest keypoint residual is above the threshold (mm).
+    KeypointMax {
+        /// The group.
+        group: KeypointGroup,
+        /// Its largest residual (mm; NaN fails).
+        max_mm: f64,
+        /// The threshold (mm).
+        threshold_mm: f64,
+    },
+    /// The shape is outside the PCA prior: a leading component's `|α_i|/σ_i` is above
+    /// [`QualityOptions::alpha_sigma`].
+    Shape {
+        /// The largest `|α_i|/σ_i` over the leading components.
+        sigmas: f64,
+        /// The bound.
+        threshold: f64,
+    },
+    /// Fitted phenotype values sit on their bounds (noted with another failure), e.g.
+    /// `muscle = 1`.
+    PhenotypeAtBounds(Vec<String>),
+    /// A problem of the initializer's chosen start.
+    Initializer(Box<Problem>),
+    /// The initializer was retried from this many starts.
+    StartsTried(usize),
+}
+
+impl std::fmt::Display for Problem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Problem::KeypointMean {
+                group,
+                mean_mm,
+                threshold_mm,
+            } => write!(
+                f,
+                "{group} keypoint mean {mean_mm:.1} mm > {threshold_mm:.1} mm"
+            ),
+            Problem::KeypointMax {
+                group,
+                max_mm,
+                threshold_mm,
+            } => write!(
+                f,
+                "{group} keypoint max {max_mm:.1} mm > {threshold_mm:.1} mm"
+            ),
+            Problem::Shape { sigmas, threshold } => write!(
+                f,
+                "shape outside the PCA prior (|α|/σ {sigmas:.1} > {threshold:.1} on a leading component)"
+            ),
+            Problem::PhenotypeAtBounds(v) => {
+                write!(f, "phenotype on its bounds: {}", v.join(", "))
+            }
+            Problem::Initializer(p) => write!(f, "initializer: {p}"),
+            Problem::StartsTried(n) => write!(f, "{n} initializer starts tried"),
+        }
+    }
+}
+
+impl Serialize for Problem {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.collect_str(self)
     }
 }
 
@@ -205,14 +284,14 @@ pub struct IkAttempt {
     /// Levenberg–Marquardt iterations.
     pub iterations: usize,
     /// What failed the quality check (empty: passed).
-    pub problems: Vec<String>,
+    pub problems: Vec<Problem>,
     /// Whether this start was kept.
     pub chosen: bool,
 }
 
 impl IkAttempt {
     /// The attempt `name` of result `r` with its problems.
-    pub fn of(name: &str, r: &IkResult, problems: Vec<String>) -> Self {
+    pub fn of(name: &str, r: &IkResult, problems: Vec<Problem>) -> Self {
         let max = r
             .residuals
             .iter()
@@ -238,9 +317,14 @@ pub struct Verdict {
     /// True when the final keypoint residuals are within the thresholds and the shape is
     /// plausible.
     pub converged: bool,
-    /// Why not (`None` when converged): the failed checks, `; `-separated.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub reason: Option<String>,
+    /// Why not (empty when converged): the failed checks. Written as `reason`, the problems
+    /// joined with `; ` ([`Verdict::reason`]).
+    #[serde(
+        rename = "reason",
+        serialize_with = "joined",
+        skip_serializing_if = "Vec::is_empty"
+    )]
+    pub problems: Vec<Problem>,
     /// The thresholds applied (mm).
     pub thresholds: Thresholds,
     /// Whether the initializer was retried from other starts.
@@ -252,18 +336,35 @@ pub struct Verdict {
 impl Verdict {
     /// A verdict from the final problems (empty: converged).
     pub fn from_problems(
-        problems: Vec<String>,
+        problems: Vec<Problem>,
         opts: &QualityOptions,
         ik_attempts: Vec<IkAttempt>,
     ) -> Self {
         Verdict {
             converged: problems.is_empty(),
-            reason: (!problems.is_empty()).then(|| problems.join("; ")),
+            problems,
             thresholds: opts.thresholds_mm(),
             retried: ik_attempts.len() > 1,
             ik_attempts,
         }
     }
+
+    /// Why the fit did not converge: its problems joined with `; ` (`None` when converged).
+    pub fn reason(&self) -> Option<String> {
+        (!self.problems.is_empty()).then(|| {
+            self.problems
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join("; ")
+        })
+    }
+}
+
+/// Serializes problems as one line, joined with `; `.
+fn joined<S: serde::Serializer>(p: &[Problem], s: S) -> std::result::Result<S::Ok, S::Error> {
+    let v: Vec<String> = p.iter().map(ToString::to_string).collect();
+    s.serialize_str(&v.join("; "))
 }
 
 #[cfg(test)]
@@ -289,8 +390,33 @@ mod tests {
         assert_eq!(q.thresholds_mm().mean_mm, 10.0);
         assert!(q.keypoint_problems(&res(0.5, 6.0)).is_empty());
         assert_eq!(q.keypoint_problems(&res(30.0, 60.0)).len(), 1);
-        assert!(q.keypoint_problems(&res(2.0, 60.0))[0].contains("max"));
-        assert!(q.keypoint_problems(&res(f64::NAN, 1.0))[0].contains("mean"));
+        assert!(matches!(
+            q.keypoint_problems(&res(2.0, 60.0))[0],
+            Problem::KeypointMax { max_mm: 60.0, .. }
+        ));
+        let nan = &q.keypoint_problems(&res(f64::NAN, 1.0))[0];
+        assert!(matches!(nan, Problem::KeypointMean { mean_mm, .. } if mean_mm.is_nan()));
+        // One line each, as reports have always written them.
+        assert_eq!(
+            q.keypoint_problems(&res(30.0, 60.0))[0].to_string(),
+            "body keypoint mean 30.0 mm > 10.0 mm"
+        );
+        let v = Verdict::from_problems(
+            vec![
+                Problem::Initializer(Box::new(Problem::StartsTried(2))),
+                Problem::PhenotypeAtBounds(vec!["muscle = 1".into()]),
+            ],
+            &q,
+            Vec::new(),
+        );
+        assert_eq!(
+            v.reason().as_deref(),
+            Some("initializer: 2 initializer starts tried; phenotype on its bounds: muscle = 1")
+        );
+        assert_eq!(
+            serde_json::to_value(&v).unwrap()["reason"],
+            serde_json::json!(v.reason().unwrap())
+        );
         let n = QualityOptions::for_noise(0.005).thresholds_mm();
         assert!((n.mean_mm - (10.0 + 2.0 * 3f64.sqrt() * 5.0)).abs() < 1e-9);
         assert!((n.max_mm - (50.0 + 4.0 * 3f64.sqrt() * 5.0)).abs() < 1e-9);

@@ -127,7 +127,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         prev = Some(l.state);
         retried += usize::from(fit.report.verdict.retried);
-        if let Some(r) = &fit.report.verdict.reason
+        if let Some(r) = &fit.report.verdict.reason()
             && reasons.len() < 3
         {
             reasons.push(r.clone());

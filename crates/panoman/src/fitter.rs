@@ -342,7 +342,7 @@ impl Fitter {
         // ICP if any) decides.
         let mut problems = panoman_fit::pipeline::ik_problems(self.model.inner(), &r, q);
         if !problems.is_empty() && attempts.len() > 1 {
-            problems.push(format!("{} initializer starts tried", attempts.len()));
+            problems.push(panoman_fit::quality::Problem::StartsTried(attempts.len()));
         }
         let report = FitReport {
             method: Method::Lbs,

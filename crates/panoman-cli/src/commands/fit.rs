@@ -307,9 +307,8 @@ pub fn run(a: FitArgs) -> Result<()> {
                 a.out.display(),
                 out.report
                     .verdict
-                    .reason
-                    .as_deref()
-                    .unwrap_or("unknown reason")
+                    .reason()
+                    .unwrap_or_else(|| "unknown reason".into())
             ),
         }
         .into());
@@ -1009,6 +1008,6 @@ fn frame_row(stem: &str, rep: &FitReport) -> serde_json::Value {
            "ik_stages": rep.ik.stages, "shell_stages": rep.stages,
            "steps_tried": tried, "steps_accepted": accepted,
            "keypoint_residuals": rep.keypoint_residuals,
-           "converged": rep.verdict.converged, "reason": rep.verdict.reason,
+           "converged": rep.verdict.converged, "reason": rep.verdict.reason(),
            "ik_retried": rep.verdict.retried})
 }

@@ -691,8 +691,8 @@ fn quality_check_retries_and_flags_an_impossible_keypoint() {
     let good = Constraints::keypoints(kp.clone());
     let (_, fit) = cold_fit(&mut solver, &good).unwrap();
     let v = &fit.report.verdict;
-    assert!(v.converged, "{:?}", v.reason);
-    assert!(v.reason.is_none() && !v.retried && v.ik_attempts.len() == 1);
+    assert!(v.converged, "{:?}", v.reason());
+    assert!(v.problems.is_empty() && !v.retried && v.ik_attempts.len() == 1);
     assert!(v.ik_attempts[0].chosen && v.ik_attempts[0].problems.is_empty());
     // The shell stage did something: its LM steps were accepted.
     let accepted: usize = fit.report.stages.iter().map(|s| s.accepted).sum();
@@ -704,8 +704,23 @@ fn quality_check_retries_and_flags_an_impossible_keypoint() {
     let (_, fit) = cold_fit(&mut solver, &bad).unwrap();
     let v = &fit.report.verdict;
     assert!(!v.converged);
-    let reason = v.reason.as_deref().unwrap();
+    let reason = v.reason().unwrap();
     assert!(reason.contains("body keypoint"), "{reason}");
+    // The problems are typed: the body group's residual is named with its threshold.
+    assert!(
+        v.problems.iter().any(|p| matches!(
+            p,
+            panoman_fit::quality::Problem::KeypointMean {
+                group: KeypointGroup::Body,
+                ..
+            } | panoman_fit::quality::Problem::KeypointMax {
+                group: KeypointGroup::Body,
+                ..
+            }
+        )),
+        "{:?}",
+        v.problems
+    );
     assert!(v.retried && v.ik_attempts.len() >= 6, "{:?}", v.ik_attempts);
     assert_eq!(v.ik_attempts.iter().filter(|a| a.chosen).count(), 1);
     assert!(v.ik_attempts.iter().all(|a| !a.problems.is_empty()));

@@ -549,7 +549,7 @@ fn run_case(
                 .map(|(p, q)| norm(sub(*p, *q)))
                 .fold(0.0, f64::max),
         converged: verdict.converged,
-        reason: verdict.reason,
+        reason: verdict.reason(),
         retried: verdict.retried,
         seconds,
         twist,

@@ -295,7 +295,7 @@ impl FitStats {
         self.lower_error_than_lbs += usize::from(panoman_mm < lbs_mm);
         self.not_converged += usize::from(!fit.report.verdict.converged);
         self.ik_retried += usize::from(fit.report.verdict.retried);
-        if let Some(r) = &fit.report.verdict.reason
+        if let Some(r) = &fit.report.verdict.reason()
             && self.reasons.len() < 10
             && !self.reasons.contains(r)
         {
