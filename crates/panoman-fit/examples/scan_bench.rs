@@ -97,8 +97,9 @@ fn main() {
         for i in 0..3 {
             let r = rows[i * rows.len() / 3];
             let truth = to_v3(ds.vertices(r).unwrap());
-            let c =
-                Constraints::keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(&truth)));
+            let c = Constraints::from_keypoints(KeypointsFile::from_all(
+                &model.keypoints.evaluate(&truth),
+            ));
             let ikr = solver.ik_fit(&c, &Default::default()).unwrap();
             let h: f64 = ikr.posed.iter().flatten().sum();
             println!(
@@ -141,7 +142,7 @@ fn main() {
                 *c += kpn * rng.gauss();
             }
         }
-        let c = Constraints::keypoints(KeypointsFile::from_all(&kpts));
+        let c = Constraints::from_keypoints(KeypointsFile::from_all(&kpts));
         let mut cp = c.clone();
         cp.targets.points = Some(panoman_fit::PointCloud {
             positions: pts.clone(),

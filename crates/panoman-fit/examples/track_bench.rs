@@ -51,7 +51,8 @@ fn main() {
     let mut times: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let (mut e_pm, mut e_lbs) = (Vec::new(), Vec::new());
     for (f, truth) in frames.iter().enumerate() {
-        let c = Constraints::keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(truth)));
+        let c =
+            Constraints::from_keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(truth)));
         let (ikr, fit) = seq.fit_next(&mut solver, &c).expect("fit");
         let lbs = solver
             .ik_fit(

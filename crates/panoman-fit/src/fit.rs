@@ -281,7 +281,7 @@ impl Constraints {
     }
 
     /// The constraints of keypoints alone.
-    pub fn keypoints(keypoints: KeypointsFile) -> Constraints {
+    pub fn from_keypoints(keypoints: KeypointsFile) -> Constraints {
         Constraints::of(Targets {
             keypoints,
             ..Default::default()

@@ -27,7 +27,7 @@ pub struct Targets {
     /// Vertex handles: template vertex → target position (metres), with a relative weight.
     pub handles: Vec<VertexHandle>,
     /// Level constraints between vertex pairs, `n̂ᵀ(x_a − x_b) = d` (metres; e.g. the soles
-    /// of planted feet, the contact prior's foot contacts), fitted by the skeletal IK.
+    /// of planted feet from `panoman::feet::FootContacts`), fitted by the skeletal IK.
     pub levels: Vec<LevelPair>,
     /// A point cloud fitted by ICP (skeletal ICP of the initializer, then the shell fit's
     /// point-to-plane passes).
@@ -36,7 +36,7 @@ pub struct Targets {
 
 impl Targets {
     /// Every keypoint of `positions` (e.g. the model's keypoints of a mesh), weight 1:
-    /// 133 in TC-133 order, or 127 in the older TC-133 order (no feet).
+    /// 133 in TC-133 order, or 127 in the older TC-127 order (no feet).
     ///
     /// # Panics
     /// For any other count ([`KeypointsFile::from_points`] returns the error instead).

@@ -617,7 +617,7 @@ fn a_forearm_twist_beyond_the_sampler_is_reached_by_the_continuation() {
         hand > panoman_fit::pipeline::WIDE_RETRY_MM,
         "bounded solve: left hand {hand} mm"
     );
-    let c = panoman_fit::Constraints::keypoints(KeypointsFile::from_all(&kp));
+    let c = panoman_fit::Constraints::from_keypoints(KeypointsFile::from_all(&kp));
     let r = panoman_fit::ik_fit(s, &c, &config).unwrap();
     let twist = r.state.angles[bone("lowerarm02.L")][1].to_degrees();
     eprintln!(
@@ -656,7 +656,7 @@ fn straight_limbs_are_reached_cold_and_kept_warm() {
     let body = |r: &panoman_fit::ik::IkResult| r.group_mean(KeypointGroup::Body).unwrap();
     let previous = panoman_fit::ik_fit(
         s,
-        &panoman_fit::Constraints::keypoints(KeypointsFile::from_all(
+        &panoman_fit::Constraints::from_keypoints(KeypointsFile::from_all(
             &fx().small_set.evaluate(&small_mesh(&bent)),
         )),
         &IkConfig::default(),
@@ -669,7 +669,7 @@ fn straight_limbs_are_reached_cold_and_kept_warm() {
         "bounded solve: body {} mm",
         body(&bounded)
     );
-    let c = panoman_fit::Constraints::keypoints(KeypointsFile::from_all(&kp));
+    let c = panoman_fit::Constraints::from_keypoints(KeypointsFile::from_all(&kp));
     let r = panoman_fit::ik_fit(s, &c, &IkConfig::default()).unwrap();
     let elbow = r.state.angles[bone("lowerarm01.L")][0].to_degrees();
     let knee = r.state.angles[bone("lowerleg01.R")][0].to_degrees();
@@ -767,7 +767,7 @@ fn foot_keypoints_set_the_foot_flexion() {
     let mesh = small_mesh(&truth);
     let all = KeypointsFile::from_all(&fx().small_set.evaluate(&mesh));
     let fit = |k: KeypointsFile| {
-        let c = panoman_fit::Constraints::keypoints(k);
+        let c = panoman_fit::Constraints::from_keypoints(k);
         panoman_fit::ik_fit(s, &c, &IkConfig::default()).unwrap()
     };
     let flexion_err = |r: &panoman_fit::ik::IkResult| flexion_error_deg(&truth, r);
@@ -803,7 +803,7 @@ fn foot_handles_place_the_feet() {
     let mesh = small_mesh(&truth);
     let feet = rest_foot_points();
     let keypoints = without_feet(KeypointsFile::from_all(&fx().small_set.evaluate(&mesh)));
-    let only = panoman_fit::Constraints::keypoints(keypoints.clone());
+    let only = panoman_fit::Constraints::from_keypoints(keypoints.clone());
     let mut with = only.clone();
     with.targets.handles = feet
         .iter()
@@ -879,7 +879,7 @@ fn level_pairs_set_the_foot_flexion() {
         }
     }
     let keypoints = without_feet(KeypointsFile::from_all(&fx().small_set.evaluate(&mesh)));
-    let only = panoman_fit::Constraints::keypoints(keypoints);
+    let only = panoman_fit::Constraints::from_keypoints(keypoints);
     let mut with = only.clone();
     with.targets.levels = levels.clone();
     let flexion_err = |r: &panoman_fit::ik::IkResult| flexion_error_deg(&truth, r);
@@ -932,7 +932,7 @@ fn the_phenotype_polish_leaves_wrong_phenotype_cells() {
     for i in 0..n {
         let truth = person(i);
         let mesh = small_mesh(&truth);
-        let c = panoman_fit::Constraints::keypoints(KeypointsFile::from_all(
+        let c = panoman_fit::Constraints::from_keypoints(KeypointsFile::from_all(
             &fx().small_set.evaluate(&mesh),
         ));
         let off = IkConfig {

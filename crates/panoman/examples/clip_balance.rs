@@ -53,7 +53,8 @@ fn held_out(
             .iter()
             .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
             .collect();
-        let c = Constraints::keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(&truth)));
+        let c =
+            Constraints::from_keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(&truth)));
         let (ikr, fit) = solver.fit(&c, &IkConfig::default(), &opts, None)?;
         let (p, l) = (mean_mm(&fit.vertices, &truth), mean_mm(&ikr.posed, &truth));
         pm += p / n as f64;
@@ -102,7 +103,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (mut tried, mut acc, mut retried) = (0, 0, 0);
     let mut reasons: Vec<String> = Vec::new();
     for truth in &truths {
-        let c = Constraints::keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(truth)));
+        let c =
+            Constraints::from_keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(truth)));
         let (ikr, fit) = seq.fit_next(&mut solver, &c)?;
         let l = solver.ik_fit(
             &c,

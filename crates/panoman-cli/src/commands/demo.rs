@@ -275,7 +275,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let kp = panoman_human::keypoints::KeypointsFile::from_all(&model.keypoints.evaluate(&target));
     let mut solver =
         panoman_fit::FrameSolver::new(model.clone(), panoman_fit::LbsRig::load(&assets, &model)?)?;
-    let c = panoman_fit::Constraints::keypoints(kp);
+    let c = panoman_fit::Constraints::from_keypoints(kp);
     let (ikr, fit) = solver.fit(&c, &Default::default(), &Default::default(), None)?;
     let err = |x: &[[f64; 3]]| {
         x.iter()

@@ -69,7 +69,7 @@ fn held_out_people_from_exact_keypoints() {
     let (mut e_pm, mut e_lbs) = (0.0, 0.0);
     for (truth, _) in &cases {
         let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
-        let c = Constraints::keypoints(kp.clone());
+        let c = Constraints::from_keypoints(kp.clone());
         let (ikr, fit) = cold_fit(&mut solver, &c).unwrap();
         let (ep, el) = (
             mean_error(&fit.vertices, truth),
@@ -113,7 +113,7 @@ fn cold_keypoint_stage_stops_after_one_step_only_within_its_tolerance() {
     let (model, mut solver) = model_and_solver(model_path);
     let (truth, _) = &held_out(data, 1)[0];
     let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
-    let c = Constraints::keypoints(kp.clone());
+    let c = Constraints::from_keypoints(kp.clone());
     let mut run = |tol: Option<f64>| {
         let opts = FitOptions {
             one_step_tolerance: tol,
@@ -180,7 +180,7 @@ fn sequence_follows_a_rigid_motion_and_propagates_the_placement() {
     let mut seq = Tracking::default();
     let mut fits = Vec::new();
     for x in [&truth, &moved, &truth] {
-        let c = Constraints::keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(x)));
+        let c = Constraints::from_keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(x)));
         fits.push(seq.fit_next(&mut solver, &c).unwrap().1);
     }
     let (f0, f1, f2) = (&fits[0], &fits[1], &fits[2]);
@@ -233,7 +233,7 @@ fn motion_data_constrains_the_body_coefficients() {
     let (_, data, model_path) = trained();
     let (model, mut solver) = model_and_solver(model_path);
     let (truth, _) = held_out(data, 1).remove(0);
-    let c = Constraints::keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(&truth)));
+    let c = Constraints::from_keypoints(KeypointsFile::from_all(&model.keypoints.evaluate(&truth)));
     let ikr = solver.ik_fit(&c, &Default::default()).unwrap();
     let init = solver.init_of(&ikr);
     let theta = init.theta.clone().unwrap();
@@ -335,7 +335,7 @@ fn point_cloud_with_missing_part_and_noise_helps() {
     // this person within 4.4 mm, the near-exact case described above.
     let kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth))
         .without_group(panoman_human::keypoints::KeypointGroup::Feet);
-    let c = Constraints::keypoints(kp);
+    let c = Constraints::from_keypoints(kp);
     let unpolished = panoman_fit::ik::IkConfig {
         phenotype_polish: false,
         ..Default::default()
@@ -389,7 +389,7 @@ fn contradictory_constraints_return_the_best_fit_and_bad_input_is_an_error() {
     // The left wrist 1 m away from the elbow: unreachable.
     let w = keypoint_index("l_wrist").unwrap();
     kp.points.get_mut(&w).unwrap()[0] += 1.0;
-    let c = Constraints::keypoints(kp);
+    let c = Constraints::from_keypoints(kp);
     let (_, fit) = cold_fit(&mut solver, &c).expect("an unreachable target is not an error");
     assert!(fit.vertices.iter().flatten().all(|x| x.is_finite()));
     assert!(fit.report.keypoint_residuals[&KeypointGroup::Body].max_mm > 100.0);
@@ -688,7 +688,7 @@ fn quality_check_retries_and_flags_an_impossible_keypoint() {
     let (model, mut solver) = model_and_solver(model_path);
     let (truth, _) = &held_out(data, 1)[0];
     let mut kp = KeypointsFile::from_all(&model.keypoints.evaluate(truth));
-    let good = Constraints::keypoints(kp.clone());
+    let good = Constraints::from_keypoints(kp.clone());
     let (_, fit) = cold_fit(&mut solver, &good).unwrap();
     let v = &fit.report.verdict;
     assert!(v.converged, "{:?}", v.reason());
@@ -700,7 +700,7 @@ fn quality_check_retries_and_flags_an_impossible_keypoint() {
 
     let w = keypoint_index("l_wrist").unwrap();
     kp.points.get_mut(&w).unwrap()[1] += 0.5;
-    let bad = Constraints::keypoints(kp);
+    let bad = Constraints::from_keypoints(kp);
     let (_, fit) = cold_fit(&mut solver, &bad).unwrap();
     let v = &fit.report.verdict;
     assert!(!v.converged);

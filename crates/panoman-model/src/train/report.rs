@@ -10,6 +10,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use super::RepresentationError;
+use crate::model::BlockName;
 
 /// Training rows per kind (of the training identities).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -107,19 +108,15 @@ pub struct BlockSummaries {
 }
 
 impl BlockSummaries {
-    /// The summary slot of block `name` (one of [`crate::model::BLOCK_NAMES`]).
-    ///
-    /// # Panics
-    /// On another name (the training only passes those).
-    pub(super) fn slot(&mut self, name: &str) -> &mut Option<BlockSummary> {
+    /// The summary slot of block `name`.
+    pub(super) fn slot(&mut self, name: BlockName) -> &mut Option<BlockSummary> {
         match name {
-            "body_l" => &mut self.body_l,
-            "face_l" => &mut self.face_l,
-            "hands_l" => &mut self.hands_l,
-            "body_a" => &mut self.body_a,
-            "face_a" => &mut self.face_a,
-            "hands_a" => &mut self.hands_a,
-            other => panic!("no block named {other}"),
+            BlockName::BodyLength => &mut self.body_l,
+            BlockName::FaceLength => &mut self.face_l,
+            BlockName::HandsLength => &mut self.hands_l,
+            BlockName::BodyAngle => &mut self.body_a,
+            BlockName::FaceAngle => &mut self.face_a,
+            BlockName::HandsAngle => &mut self.hands_a,
         }
     }
 }

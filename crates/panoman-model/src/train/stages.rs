@@ -154,7 +154,7 @@ pub(super) fn decompose(
                     "decomposition {name} (outer iteration {it}/{iters})"
                 ));
             })?;
-            *log.blocks.slot(name) = Some(BlockSummary {
+            *log.blocks.slot(BlockName::ALL[b]) = Some(BlockSummary {
                 rows: n,
                 columns: c.len(),
                 components: dec.n_components(),

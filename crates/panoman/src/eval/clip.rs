@@ -59,7 +59,7 @@ pub(crate) fn run(
     let mut map_frame = None;
     let mut stats = FitStats::default();
     for (f, truth) in truths.iter().enumerate() {
-        let c = Constraints::keypoints(KeypointsFile::from_all(
+        let c = Constraints::from_keypoints(KeypointsFile::from_all(
             &b.model.inner().keypoints.evaluate(truth),
         ));
         let (ikr, fit) = seq.fit_next(&mut b.solver, &c)?;

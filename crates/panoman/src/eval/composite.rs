@@ -15,7 +15,7 @@ use crate::model::{BlockName, Correction};
 /// A cold fit of dataset row `r` from its exact keypoints.
 fn fit_row(b: &mut Bench, r: usize) -> Result<FitResult> {
     let truth = to_v3(b.ds.vertices(r)?);
-    let c = Constraints::keypoints(KeypointsFile::from_all(
+    let c = Constraints::from_keypoints(KeypointsFile::from_all(
         &b.model.inner().keypoints.evaluate(&truth),
     ));
     Ok(b.solver.fit(&c, &b.ikc, &b.opts, None)?.1)

@@ -102,7 +102,7 @@ pub(crate) fn run(
             } else {
                 kp.clone()
             };
-            let c = Constraints::keypoints(KeypointsFile::from_all(&pts));
+            let c = Constraints::from_keypoints(KeypointsFile::from_all(&pts));
             let ikc = if is_noisy {
                 ik_config_for_noise(0.005)
             } else {

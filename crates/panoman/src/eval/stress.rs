@@ -488,7 +488,7 @@ fn run_case(
     if cfg.stress_without_feet {
         keypoints = keypoints.without_group(KeypointGroup::Feet);
     }
-    let c = Constraints::keypoints(keypoints);
+    let c = Constraints::from_keypoints(keypoints);
     let t = std::time::Instant::now();
     let (ikr, fit) = b.solver.fit(&c, &b.ikc, &b.opts, None)?;
     let seconds = t.elapsed().as_secs_f64();

@@ -186,7 +186,7 @@ fn twist_row(
     pose.euler_deg[s.bone][1] = ang;
     let posed = p.id.pose(&pose);
     let truth = b.rig().map.map(b.rig().topology, &posed.vertices);
-    let c = Constraints::keypoints(KeypointsFile::from_all(
+    let c = Constraints::from_keypoints(KeypointsFile::from_all(
         &b.model.inner().keypoints.evaluate(&truth),
     ));
     // The identity is known here (the study is about the twist): the IK keeps the true
